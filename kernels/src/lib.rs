@@ -1,0 +1,18 @@
+//! blockflow-kernels: the per-block numerics of blockflow, as pure functions over block data.
+//!
+//! D3Q19 lattice ([`d3q19`]), zero-centred structure-of-arrays storage ([`field`]), TRT collision with
+//! Guo forcing (eqs. 2, 3, 5 of Rettinger & Rüde 2019, [`trt`]), pull streaming and the fused kernel
+//! (eq. 4, [`sweep`]), and bounce-back walls ([`bounce_back`]). Nothing here knows about threads.
+
+pub mod bounce_back;
+pub mod d3q19;
+pub mod field;
+pub mod real;
+pub mod simd;
+pub mod sweep;
+pub mod trt;
+
+pub use field::{Layout, PdfField};
+pub use real::Real;
+pub use sweep::{Segment, SweepStats};
+pub use trt::TrtParams;

@@ -1,0 +1,257 @@
+//! One block: its PDF fields (source and destination), cell flags, fluid segments, bounce-back links and
+//! the list of ghost regions it must receive. Built once per block layout from the scene geometry.
+
+use crate::domain::{DomainSpec, NEIGHBOURS};
+use crate::geometry::{flags, CellKind, Geometry};
+use blockflow_kernels::bounce_back::Links;
+use blockflow_kernels::d3q19::{crossing_directions, C, Q};
+use blockflow_kernels::sweep::Segment;
+use blockflow_kernels::{Layout, PdfField, Real};
+
+/// Byte skew of a block's second field against the first, so source and destination arrays do not alias
+/// on 4 KiB pages either.
+const DST_SKEW_BYTES: usize = 2048 + 96;
+
+/// A ghost region this block receives: the neighbour at `offset` sends the `directions` that cross.
+#[derive(Clone, Debug)]
+pub struct GhostRecv {
+    /// Offset of the neighbour block (each component in -1..=1).
+    pub offset: [i32; 3],
+    /// The neighbour's block id (may be this block itself on a periodic axis with one block).
+    pub from: usize,
+    /// PDF directions that stream from the ghost region into this block.
+    pub directions: Vec<usize>,
+}
+
+/// Per-block state of the fluid.
+pub struct Block<T: Real> {
+    /// Block id (x fastest over the block grid).
+    pub id: usize,
+    /// Block coordinates.
+    pub coords: [usize; 3],
+    /// Global coordinates of the first interior cell.
+    pub origin: [usize; 3],
+    /// Index arithmetic of both fields.
+    pub layout: Layout,
+    /// Current state (post-collision PDFs between steps; ghosts filled by exchange, walls by boundary).
+    pub src: PdfField<T>,
+    /// Destination of the next stream.
+    pub dst: PdfField<T>,
+    /// Flag byte per cell, indexed like the fields (ghost layer included).
+    pub flags: Vec<u8>,
+    /// Runs of fluid cells along x: what the kernels sweep.
+    pub segments: Vec<Segment>,
+    /// Bounce-back links of the fluid cells.
+    pub links: Links<T>,
+    /// Ghost regions to receive before the boundary pass.
+    pub recv: Vec<GhostRecv>,
+    /// Number of interior fluid cells.
+    pub fluid_cells: usize,
+    /// Number of interior fluid cells with a wall neighbour.
+    pub near_boundary_cells: usize,
+    /// Whether every interior cell is fluid (then segments are whole rows).
+    pub obstacle_free: bool,
+}
+
+impl<T: Real> Block<T> {
+    /// Builds block `id` of `d` from the geometry: flags (ghost layer included), segments, links and the
+    /// ghost regions it needs. Fields start at rest; call [`Block::init`] to set an initial state.
+    pub fn new(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+        let layout = Layout::new::<T>(d.block_size);
+        let origin = d.origin(id);
+        let [fx, fy, fz] = layout.full();
+        let mut kind = vec![CellKind::Fluid; fx * fy * fz];
+        let lin = |x: usize, y: usize, z: usize| x + fx * (y + fy * z);
+        for z in 0..fz {
+            for y in 0..fy {
+                for x in 0..fx {
+                    let g = [
+                        origin[0] as i64 + x as i64 - 1,
+                        origin[1] as i64 + y as i64 - 1,
+                        origin[2] as i64 + z as i64 - 1,
+                    ];
+                    kind[lin(x, y, z)] = geo.classify(d, g);
+                }
+            }
+        }
+        let mut fl = vec![0u8; layout.sxy * fz];
+        for z in 0..fz {
+            for y in 0..fy {
+                for x in 0..fx {
+                    let i = layout.idx(x, y, z);
+                    fl[i] = match kind[lin(x, y, z)] {
+                        CellKind::Fluid => flags::FLUID,
+                        CellKind::Wall(_) => flags::OUTSIDE,
+                    };
+                }
+            }
+        }
+        let mut links = Links::new();
+        let mut segments = Vec::new();
+        let mut fluid_cells = 0;
+        let mut near = 0;
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                let mut run: Option<Segment> = None;
+                for x in 1..fx - 1 {
+                    let i = layout.idx(x, y, z);
+                    if fl[i] & flags::FLUID == 0 {
+                        if let Some(s) = run.take() {
+                            segments.push(s);
+                        }
+                        continue;
+                    }
+                    fluid_cells += 1;
+                    match run.as_mut() {
+                        Some(s) => s.len += 1,
+                        None => run = Some(Segment { start: i, len: 1 }),
+                    }
+                    let mut is_near = false;
+                    for (q, c) in C.iter().enumerate().skip(1) {
+                        let (wx, wy, wz) = (
+                            (x as i64 - c[0] as i64) as usize,
+                            (y as i64 - c[1] as i64) as usize,
+                            (z as i64 - c[2] as i64) as usize,
+                        );
+                        if let CellKind::Wall(v) = kind[lin(wx, wy, wz)] {
+                            links.push(&layout, i, q, v);
+                            is_near = true;
+                            let w = layout.idx(wx, wy, wz);
+                            fl[w] = if v == [0.0; 3] {
+                                flags::NOSLIP
+                            } else {
+                                flags::MOVING_WALL
+                            };
+                        }
+                    }
+                    if is_near {
+                        fl[i] |= flags::NEAR_BOUNDARY;
+                        near += 1;
+                    }
+                }
+                if let Some(s) = run.take() {
+                    segments.push(s);
+                }
+            }
+        }
+        let mut recv = Vec::new();
+        if fluid_cells > 0 {
+            for &off in NEIGHBOURS.iter() {
+                let dirs = crossing_directions(off);
+                if dirs.is_empty() {
+                    continue;
+                }
+                let Some(from) = d.neighbour(id, off) else {
+                    continue;
+                };
+                // Needed only if a fluid ghost cell in this region streams into an interior fluid cell.
+                let needed = ghost_region(&layout, off).any(|(x, y, z)| {
+                    fl[layout.idx(x, y, z)] & flags::FLUID != 0
+                        && dirs.iter().any(|&q| {
+                            let t = layout.idx(
+                                (x as i64 + C[q][0] as i64) as usize,
+                                (y as i64 + C[q][1] as i64) as usize,
+                                (z as i64 + C[q][2] as i64) as usize,
+                            );
+                            fl[t] & flags::FLUID != 0
+                        })
+                });
+                if needed {
+                    recv.push(GhostRecv {
+                        offset: off,
+                        from,
+                        directions: dirs,
+                    });
+                }
+            }
+        }
+        let obstacle_free = fluid_cells == layout.interior_cells();
+        Block {
+            id,
+            coords: d.coords(id),
+            origin,
+            layout,
+            src: PdfField::new(layout, 0),
+            dst: PdfField::new(layout, DST_SKEW_BYTES),
+            flags: fl,
+            segments,
+            links,
+            recv,
+            fluid_cells,
+            near_boundary_cells: near,
+            obstacle_free,
+        }
+    }
+
+    /// Sets every fluid cell to the post-collision state `f(global cell)` (zero-centred PDFs).
+    pub fn init(&mut self, mut f: impl FnMut([usize; 3]) -> [f64; Q]) {
+        let l = self.layout;
+        for s in &self.segments {
+            let [x0, y, z] = l.coords(s.start);
+            for x in x0..x0 + s.len {
+                let g = [
+                    self.origin[0] + x - 1,
+                    self.origin[1] + y - 1,
+                    self.origin[2] + z - 1,
+                ];
+                let v = f(g);
+                let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(v[q]));
+                self.src.set_cell(l.idx(x, y, z), &cell);
+            }
+        }
+    }
+
+    /// Calls `visit(global cell, element index)` for every interior fluid cell, in x-fastest order.
+    pub fn for_each_fluid(&self, mut visit: impl FnMut([usize; 3], usize)) {
+        let l = self.layout;
+        for s in &self.segments {
+            let [x0, y, z] = l.coords(s.start);
+            for x in x0..x0 + s.len {
+                visit(
+                    [
+                        self.origin[0] + x - 1,
+                        self.origin[1] + y - 1,
+                        self.origin[2] + z - 1,
+                    ],
+                    l.idx(x, y, z),
+                );
+            }
+        }
+    }
+
+    /// Bytes of PDF storage (both fields).
+    pub fn pdf_bytes(&self) -> usize {
+        2 * self.layout.len() * std::mem::size_of::<T>()
+    }
+}
+
+/// The ghost cells (ghost-inclusive coordinates) of the region at neighbour offset `off`.
+pub fn ghost_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
+    let r = |a: usize| match off[a] {
+        -1 => 0..=0,
+        0 => 1..=l.size[a],
+        _ => l.size[a] + 1..=l.size[a] + 1,
+    };
+    let (rx, ry, rz) = (r(0), r(1), r(2));
+    rz.flat_map(move |z| {
+        let rx = rx.clone();
+        ry.clone()
+            .flat_map(move |y| rx.clone().map(move |x| (x, y, z)))
+    })
+}
+
+/// The interior cells of a sending block that fill a receiver's ghost region at offset `off` (the layer
+/// adjacent to the opposite face), in the same order as [`ghost_region`].
+pub fn source_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
+    let r = |a: usize| match off[a] {
+        -1 => l.size[a]..=l.size[a],
+        0 => 1..=l.size[a],
+        _ => 1..=1,
+    };
+    let (rx, ry, rz) = (r(0), r(1), r(2));
+    rz.flat_map(move |z| {
+        let rx = rx.clone();
+        ry.clone()
+            .flat_map(move |y| rx.clone().map(move |x| (x, y, z)))
+    })
+}

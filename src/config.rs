@@ -1,0 +1,250 @@
+//! Scene configuration: TOML files with the stable keys of DESIGN.md, `--set key.path=value` overrides,
+//! unknown keys rejected by name.
+
+use crate::error::{config_err, Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// A whole scene file.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Block decomposition (`[domain]`).
+    #[serde(default)]
+    pub domain: DomainConfig,
+    /// Fluid model (`[fluid]`).
+    #[serde(default)]
+    pub fluid: FluidConfig,
+    /// Run control (`[run]`).
+    #[serde(default)]
+    pub run: RunConfig,
+    /// The scene and its physical parameters (`[scene]`, chosen by `kind`).
+    pub scene: crate::scenes::SceneConfig,
+}
+
+/// `[domain]`: how the scene's box of cells is cut into blocks.
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct DomainConfig {
+    /// Blocks per axis. Scenes with a fixed extent derive `block_size` from it.
+    pub blocks: Option<[usize; 3]>,
+    /// Cells per block and axis (non-cubic allowed).
+    pub block_size: Option<[usize; 3]>,
+    /// Periodicity per axis; scenes that fix it reject a different value.
+    pub periodic: Option<[bool; 3]>,
+}
+
+/// Storage and compute precision of the PDFs.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// Double precision (default).
+    #[default]
+    F64,
+    /// Single precision: about twice the MLUPS, errors floor near 1e-6.
+    F32,
+}
+
+/// Which kernels a fluid block runs.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum KernelChoice {
+    /// Fused pull-stream + collide (default; bitwise equal to `split`).
+    #[default]
+    Fused,
+    /// Separate stream and collide sweeps.
+    Split,
+}
+
+/// `[fluid]`: the lattice Boltzmann model.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidConfig {
+    /// Relaxation time τ+ (ν = (τ - 1/2)/3, eq. 5). Absent: the scene's default or derived value.
+    pub tau: Option<f64>,
+    /// Magic parameter Λ of eq. (5); 3/16 puts bounce-back walls exactly half-way.
+    #[serde(default = "default_magic")]
+    pub magic: f64,
+    /// `"f64"` (default) or `"f32"`.
+    #[serde(default)]
+    pub precision: Precision,
+    /// Largest |u| (lattice units) before the run is stopped as unstable.
+    #[serde(default = "default_velocity_limit")]
+    pub velocity_limit: f64,
+    /// `"fused"` (default) or `"split"` kernels.
+    #[serde(default)]
+    pub kernel: KernelChoice,
+}
+
+fn default_magic() -> f64 {
+    3.0 / 16.0
+}
+fn default_velocity_limit() -> f64 {
+    0.5
+}
+
+impl Default for FluidConfig {
+    fn default() -> Self {
+        FluidConfig {
+            tau: None,
+            magic: default_magic(),
+            precision: Precision::F64,
+            velocity_limit: default_velocity_limit(),
+            kernel: KernelChoice::Fused,
+        }
+    }
+}
+
+/// `[run]`: run length and output.
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Number of time steps; absent: the scene's own (e.g. to steady state).
+    pub steps: Option<u64>,
+    /// Output folder; absent: `out/<scene file name>`.
+    pub out: Option<String>,
+    /// Write a row of `series.csv` every this many steps (default: about 200 rows per run).
+    pub series_every: Option<u64>,
+    /// Write VTK output every this many steps (default: never).
+    pub vtk_every: Option<u64>,
+}
+
+/// Reads a scene file, applies `--set` overrides and validates the generic keys.
+pub fn load(path: &Path, overrides: &[String]) -> Result<Config> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Error::Config(format!("cannot read {}: {e}", path.display())))?;
+    parse(&text, &path.display().to_string(), overrides)
+}
+
+/// Parses scene text (named `origin` in messages), applies overrides and validates.
+pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
+    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
+        let pos = e
+            .span()
+            .map(|s| {
+                let line = text[..s.start].matches('\n').count() + 1;
+                let col = s.start - text[..s.start].rfind('\n').map_or(0, |p| p + 1) + 1;
+                format!(" at line {line}, column {col}")
+            })
+            .unwrap_or_default();
+        Error::Config(format!(
+            "{origin}: TOML syntax error{pos}: {}",
+            one_line(e.message())
+        ))
+    })?;
+    for o in overrides {
+        apply_override(&mut table, o)?;
+    }
+    match table.get("scene") {
+        Some(sc) => {
+            crate::scenes::check_table(sc).map_err(|m| Error::Config(format!("{origin}: {m}")))?
+        }
+        None => {
+            return config_err(format!(
+                "{origin}: missing [scene] table (with kind = \"channel\", ...)"
+            ))
+        }
+    }
+    let cfg: Config = serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let path = e.path().to_string();
+        let inner = one_line(&e.inner().to_string());
+        let key = if path == "." {
+            String::new()
+        } else {
+            format!("{path}: ")
+        };
+        Error::Config(format!("{origin}: {key}{inner}"))
+    })?;
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// Applies one `key.path=value` override. The value is read as a TOML value (`0.6`, `[2, 2, 1]`, `true`,
+/// `"f32"`); anything that does not parse as TOML is taken as a string (`fluid.precision=f32`).
+pub fn apply_override(table: &mut toml::Table, spec: &str) -> Result<()> {
+    let Some((key, raw)) = spec.split_once('=') else {
+        return config_err(format!("--set {spec}: expected key.path=value"));
+    };
+    let key = key.trim();
+    let raw = raw.trim();
+    if key.is_empty() || key.split('.').any(|p| p.is_empty()) {
+        return config_err(format!("--set {spec}: empty key"));
+    }
+    let value = match format!("v = {raw}").parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").expect("parsed key"),
+        Err(_) => toml::Value::String(raw.to_string()),
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = table;
+    for (i, p) in parts[..parts.len() - 1].iter().enumerate() {
+        let entry = cur
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        cur = match entry {
+            toml::Value::Table(t) => t,
+            _ => {
+                return config_err(format!(
+                    "--set {spec}: {} is not a table",
+                    parts[..=i].join(".")
+                ))
+            }
+        };
+    }
+    cur.insert(parts[parts.len() - 1].to_string(), value);
+    Ok(())
+}
+
+impl Config {
+    /// Checks the generic keys; scenes check their own.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(t) = self.fluid.tau {
+            if !(t > 0.5) || !t.is_finite() {
+                return config_err(format!(
+                    "fluid.tau = {t}: must be a finite number > 0.5 (ν = (τ - 1/2)/3 must be positive)"
+                ));
+            }
+        }
+        if !(self.fluid.magic > 0.0) || !self.fluid.magic.is_finite() {
+            return config_err(format!(
+                "fluid.magic = {}: must be a finite number > 0 (default 0.1875)",
+                self.fluid.magic
+            ));
+        }
+        if !(self.fluid.velocity_limit > 0.0) {
+            return config_err(format!(
+                "fluid.velocity_limit = {}: must be > 0 (default 0.5)",
+                self.fluid.velocity_limit
+            ));
+        }
+        for (name, v) in [
+            ("domain.blocks", self.domain.blocks),
+            ("domain.block_size", self.domain.block_size),
+        ] {
+            if let Some(v) = v {
+                if v.contains(&0) {
+                    return config_err(format!("{name} = {v:?}: every entry must be at least 1"));
+                }
+            }
+        }
+        for (name, v) in [
+            ("run.series_every", self.run.series_every),
+            ("run.vtk_every", self.run.vtk_every),
+        ] {
+            if v == Some(0) {
+                return config_err(format!(
+                    "{name} = 0: must be at least 1 (leave it out to disable)"
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The configuration as TOML (what `effective.toml` holds: every default and override resolved).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+}

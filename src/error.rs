@@ -1,0 +1,87 @@
+//! Errors a user can cause, each a one-line message naming the key, file, block or cell concerned.
+
+use std::fmt;
+
+/// Where an unstable run was caught and what the cell held (DESIGN.md principle 5).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Instability {
+    /// Step at which the detector fired (1-based: the state after this many steps).
+    pub step: u64,
+    /// Block id.
+    pub block: usize,
+    /// Block coordinates in the block grid.
+    pub block_coords: [usize; 3],
+    /// Global cell coordinates (0-based, interior cells).
+    pub cell: [usize; 3],
+    /// Density ρ = 1 + δρ of that cell.
+    pub density: f64,
+    /// Velocity of that cell.
+    pub velocity: [f64; 3],
+    /// The velocity limit in force (`fluid.velocity_limit`).
+    pub limit: f64,
+}
+
+impl fmt::Display for Instability {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let [x, y, z] = self.cell;
+        let [bx, by, bz] = self.block_coords;
+        let u = self.velocity;
+        let what = if self.density.is_finite() && u.iter().all(|v| v.is_finite()) {
+            format!("|u| above fluid.velocity_limit = {}", self.limit)
+        } else {
+            "a non-finite value".to_string()
+        };
+        write!(
+            f,
+            "unstable at step {}: {what} in block {} ({bx},{by},{bz}), cell ({x},{y},{z}): density {:.6e}, \
+             velocity ({:.6e}, {:.6e}, {:.6e}); lower the velocity (Mach number), raise fluid.tau or refine \
+             scene.resolution",
+            self.step, self.block, self.density, u[0], u[1], u[2]
+        )
+    }
+}
+
+/// Everything that stops a run.
+#[derive(Debug)]
+pub enum Error {
+    /// Bad configuration, command-line value or impossible geometry. The message names the key.
+    Config(String),
+    /// A file could not be read or written. The message names the file.
+    Io(String),
+    /// The run became unstable.
+    Unstable(Instability),
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Error::Config(m) | Error::Io(m) => f.write_str(m),
+            Error::Unstable(i) => i.fmt(f),
+        }
+    }
+}
+
+impl std::error::Error for Error {}
+
+impl Error {
+    /// Process exit code: 1 for configuration and I/O errors, 3 for an unstable run.
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            Error::Config(_) | Error::Io(_) => 1,
+            Error::Unstable(_) => 3,
+        }
+    }
+}
+
+/// Shorthand for a configuration error.
+pub fn config_err<T>(msg: impl Into<String>) -> Result<T> {
+    Err(Error::Config(msg.into()))
+}
+
+/// An I/O error that names the path.
+pub fn io_err(path: &std::path::Path, e: std::io::Error) -> Error {
+    Error::Io(format!("{}: {e}", path.display()))
+}
+
+/// Result with [`Error`].
+pub type Result<T> = std::result::Result<T, Error>;

@@ -1,0 +1,5 @@
+//! Output: `summary.json`, the CSV time series and VTK files for ParaView.
+
+pub mod series;
+pub mod summary;
+pub mod vtk;

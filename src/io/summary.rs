@@ -1,0 +1,100 @@
+//! `summary.json`: the stable result record of a run (DESIGN.md, "Command line and output contract").
+//! Names are never renamed; fields that do not apply to a run are absent.
+
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Seconds per part of Algorithm 1 (parts a run does not have are absent).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PartsSeconds {
+    /// Collide and stream (or the fused kernel).
+    pub lbm: f64,
+    /// Boundary handling.
+    pub boundary: f64,
+    /// Ghost exchange (not one of the paper's parts; reported beside them).
+    pub exchange: f64,
+    /// Particle mapping.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub map: Option<f64>,
+    /// PDF reconstruction.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reconstruct: Option<f64>,
+    /// Rigid-body sub-steps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rigid_body: Option<f64>,
+}
+
+/// Hashes over the exact bits of the final state (hex).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Checksums {
+    /// Every fluid cell's PDFs; independent of block layout and processes.
+    pub fluid: String,
+    /// Every body's state (absent without particles).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particles: Option<String>,
+}
+
+/// Work per step that the skip rule left (DESIGN.md principle 2).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct WorkSummary {
+    /// Blocks that ran the fluid sweep each step.
+    pub fluid_sweeps_per_step: usize,
+    /// Blocks that ran a boundary pass each step.
+    pub boundary_passes_per_step: usize,
+    /// Ghost regions exchanged each step.
+    pub messages_per_step: usize,
+    /// Blocks without any fluid cell (no fluid work at all).
+    pub blocks_without_fluid: usize,
+    /// Blocks whose fluid cells have no wall neighbour (no boundary pass).
+    pub blocks_without_boundary: usize,
+}
+
+/// The whole summary.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Summary {
+    /// `"ok"`, `"unstable"` or `"error"`: only `"ok"` is a result.
+    pub status: String,
+    /// The error message when status is not ok.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// Scene kind.
+    pub scene: String,
+    /// One line on the physical set-up.
+    pub description: String,
+    /// Steps completed.
+    pub steps: u64,
+    /// Steps requested.
+    pub steps_requested: u64,
+    /// Cells of the domain.
+    pub cells: usize,
+    /// Fluid cells.
+    pub fluid_cells: usize,
+    /// Blocks.
+    pub blocks: usize,
+    /// Blocks per axis.
+    pub block_grid: [usize; 3],
+    /// Cells per block and axis.
+    pub block_size: [usize; 3],
+    /// Virtual processes.
+    pub processes: usize,
+    /// Threads per process.
+    pub threads_per_process: usize,
+    /// `"f64"` or `"f32"`.
+    pub precision: String,
+    /// Relaxation time τ+.
+    pub tau: f64,
+    /// Magic parameter Λ.
+    pub magic: f64,
+    /// Wall-clock seconds of the time loop (set-up and output excluded).
+    pub wall_seconds: f64,
+    /// Fluid cell updates per second / 1e6 over the whole step.
+    pub mlups: f64,
+    /// Seconds per part.
+    pub parts_seconds: PartsSeconds,
+    /// Final-state hashes.
+    pub checksum: Checksums,
+    /// Scene observables.
+    pub observables: BTreeMap<String, f64>,
+    /// Skip-rule bookkeeping.
+    pub work: WorkSummary,
+}

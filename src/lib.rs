@@ -1,0 +1,19 @@
+//! blockflow: geometrically resolved particulate flow on blocks.
+//!
+//! The library joins the per-block numerics of `blockflow-kernels` with the scheduling of
+//! `blockflow-scheduler`: configuration ([`config`]), the block domain and its geometry ([`domain`],
+//! [`geometry`], [`block`]), the per-block stages of a time step ([`fluid`]), the time loop ([`sim`]),
+//! scenes ([`scenes`]), output ([`io`]) and the command line ([`cli`]).
+
+pub mod bench_kernel;
+pub mod block;
+pub mod cli;
+pub mod config;
+pub mod domain;
+pub mod error;
+pub mod fluid;
+pub mod geometry;
+pub mod io;
+pub mod runner;
+pub mod scenes;
+pub mod sim;

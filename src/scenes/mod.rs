@@ -1,0 +1,248 @@
+//! Scenes: each turns its `[scene]` keys (above all `scene.resolution`) into a domain extent, geometry,
+//! fluid parameters, a step count, an initial state and its observables, keeping the physical problem
+//! fixed when the resolution changes.
+
+mod box_scene;
+mod cavity;
+mod channel;
+mod couette;
+mod taylor_green;
+
+use crate::config::{Config, DomainConfig};
+use crate::domain::DomainSpec;
+use crate::error::{config_err, Result};
+use crate::geometry::Geometry;
+use blockflow_kernels::TrtParams;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+pub use box_scene::{BoxConfig, PlaneConfig};
+pub use cavity::CavityConfig;
+pub use channel::ChannelConfig;
+pub use couette::CouetteConfig;
+pub use taylor_green::TaylorGreenConfig;
+
+/// `[scene]`: which scene (`kind`) and its parameters.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum SceneConfig {
+    /// Force-driven Poiseuille flow between two walls.
+    Channel(ChannelConfig),
+    /// Shear flow between a resting and a moving wall.
+    Couette(CouetteConfig),
+    /// Decaying Taylor–Green vortex in a periodic box.
+    TaylorGreen(TaylorGreenConfig),
+    /// Lid-driven cubic cavity.
+    Cavity(CavityConfig),
+    /// A box of fluid with optional walls, planes, body force and initial velocity.
+    Box(BoxConfig),
+}
+
+/// Read access to the fluid for observables: visits (global cell, δρ, u) of every fluid cell.
+pub trait FluidView {
+    /// Visits every fluid cell in a fixed order.
+    fn visit(&self, f: &mut dyn FnMut([usize; 3], f64, [f64; 3]));
+    /// Steps taken so far (the time in lattice units).
+    fn steps_taken(&self) -> u64;
+}
+
+/// Initial state of a cell: (δρ, u) from its global coordinates.
+pub type InitFn = Box<dyn Fn([usize; 3]) -> (f64, [f64; 3]) + Send + Sync>;
+/// Scene observables from the fluid state.
+pub type ObserveFn = Box<dyn Fn(&dyn FluidView) -> BTreeMap<String, f64> + Send + Sync>;
+
+/// Everything a run needs from a scene.
+pub struct Scene {
+    /// Scene kind (`channel`, ...).
+    pub name: &'static str,
+    /// Domain extent in cells; `None` when the `[domain]` keys define it (box scene).
+    pub cells: Option<[usize; 3]>,
+    /// Periodicity the scene requires.
+    pub periodic: [bool; 3],
+    /// Block count used when neither `domain.blocks` nor `domain.block_size` is given.
+    pub default_blocks: [usize; 3],
+    /// Walls and planes.
+    pub geometry: Geometry,
+    /// τ, Λ and body force.
+    pub params: TrtParams,
+    /// Default number of steps.
+    pub steps: u64,
+    /// Initial state.
+    pub init: InitFn,
+    /// Observables.
+    pub observe: ObserveFn,
+    /// One line on the physical set-up, for logs and summary.json.
+    pub description: String,
+}
+
+/// Checks a raw `[scene]` table against the keys of its `kind`, so errors name the full key path
+/// (`scene.resolution: invalid type ...`); serde's tagged enums would only say `scene`.
+pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
+    fn de<T: serde::de::DeserializeOwned>(v: toml::Value) -> std::result::Result<(), String> {
+        serde_path_to_error::deserialize::<_, T>(v)
+            .map(|_| ())
+            .map_err(|e| {
+                let p = e.path().to_string();
+                let inner = e
+                    .inner()
+                    .to_string()
+                    .split_whitespace()
+                    .collect::<Vec<_>>()
+                    .join(" ");
+                if p == "." {
+                    format!("scene: {inner}")
+                } else {
+                    format!("scene.{p}: {inner}")
+                }
+            })
+    }
+    let toml::Value::Table(t) = scene else {
+        return Err("scene: must be a table ([scene] with kind = ...)".into());
+    };
+    let mut t = t.clone();
+    let kind = match t.remove("kind") {
+        Some(toml::Value::String(k)) => k,
+        Some(other) => return Err(format!("scene.kind = {other}: must be a string")),
+        None => {
+            return Err(
+                "scene.kind: missing; one of channel, couette, taylor_green, cavity, box".into(),
+            );
+        }
+    };
+    let v = toml::Value::Table(t);
+    match kind.as_str() {
+        "channel" => de::<ChannelConfig>(v),
+        "couette" => de::<CouetteConfig>(v),
+        "taylor_green" => de::<TaylorGreenConfig>(v),
+        "cavity" => de::<CavityConfig>(v),
+        "box" => de::<BoxConfig>(v),
+        k => Err(format!(
+            "scene.kind = {k:?}: unknown scene; one of channel, couette, taylor_green, cavity, box"
+        )),
+    }
+}
+
+/// Builds the scene of a configuration.
+pub fn build(cfg: &Config) -> Result<Scene> {
+    match &cfg.scene {
+        SceneConfig::Channel(s) => channel::build(s, cfg),
+        SceneConfig::Couette(s) => couette::build(s, cfg),
+        SceneConfig::TaylorGreen(s) => taylor_green::build(s, cfg),
+        SceneConfig::Cavity(s) => cavity::build(s, cfg),
+        SceneConfig::Box(s) => box_scene::build(s, cfg),
+    }
+}
+
+/// Resolves the block decomposition of a scene from the `[domain]` keys: blocks, block size or both
+/// (they must multiply to the scene's extent), periodicity fixed by the scene.
+pub fn domain_for(d: &DomainConfig, scene: &Scene) -> Result<DomainSpec> {
+    if let Some(p) = d.periodic {
+        if p != scene.periodic && scene.cells.is_some() {
+            return config_err(format!(
+                "domain.periodic = {p:?}: scene {} fixes periodicity to {:?}; remove the key",
+                scene.name, scene.periodic
+            ));
+        }
+    }
+    let Some(cells) = scene.cells else {
+        let blocks = d.blocks.unwrap_or([1, 1, 1]);
+        let block_size = d.block_size.unwrap_or([16, 16, 16]);
+        return Ok(DomainSpec {
+            blocks,
+            block_size,
+            periodic: d.periodic.unwrap_or(scene.periodic),
+        });
+    };
+    let (blocks, block_size) = match (d.blocks, d.block_size) {
+        (Some(b), Some(s)) => {
+            let have = [b[0] * s[0], b[1] * s[1], b[2] * s[2]];
+            if have != cells {
+                return config_err(format!(
+                    "domain.blocks {b:?} x domain.block_size {s:?} = {have:?} cells, but scene {} needs {cells:?} \
+                     at this scene.resolution; give only one of the two keys",
+                    scene.name
+                ));
+            }
+            (b, s)
+        }
+        (Some(b), None) => {
+            for a in 0..3 {
+                if cells[a] % b[a] != 0 {
+                    return config_err(format!(
+                        "domain.blocks = {b:?}: {} cells along axis {a} do not split into {} equal blocks (scene {} \
+                         needs {cells:?} cells); choose a divisor",
+                        cells[a], b[a], scene.name
+                    ));
+                }
+            }
+            (b, [cells[0] / b[0], cells[1] / b[1], cells[2] / b[2]])
+        }
+        (None, Some(s)) => {
+            for a in 0..3 {
+                if cells[a] % s[a] != 0 {
+                    return config_err(format!(
+                        "domain.block_size = {s:?}: {} cells along axis {a} are not a multiple of {} (scene {} needs \
+                         {cells:?} cells); choose a divisor",
+                        cells[a], s[a], scene.name
+                    ));
+                }
+            }
+            ([cells[0] / s[0], cells[1] / s[1], cells[2] / s[2]], s)
+        }
+        (None, None) => {
+            let b = scene.default_blocks;
+            let ok = (0..3).all(|a| cells[a] % b[a] == 0);
+            if ok {
+                (b, [cells[0] / b[0], cells[1] / b[1], cells[2] / b[2]])
+            } else {
+                ([1, 1, 1], cells)
+            }
+        }
+    };
+    Ok(DomainSpec {
+        blocks,
+        block_size,
+        periodic: scene.periodic,
+    })
+}
+
+/// τ from `fluid.tau` or the scene's default.
+pub(crate) fn tau_or(cfg: &Config, default: f64) -> f64 {
+    cfg.fluid.tau.unwrap_or(default)
+}
+
+/// Checks that a scene parameter is a finite number inside `(lo, hi]`-style bounds given as a predicate.
+pub(crate) fn check(key: &str, v: f64, ok: bool, what: &str) -> Result<()> {
+    if ok && v.is_finite() {
+        Ok(())
+    } else {
+        config_err(format!("scene.{key} = {v}: {what}"))
+    }
+}
+
+/// Relative L2 error of a velocity field against an analytic one: sqrt(Σ|u - u_a|²) / sqrt(Σ|u_a|²).
+pub(crate) fn relative_l2(view: &dyn FluidView, exact: impl Fn([usize; 3]) -> [f64; 3]) -> f64 {
+    let mut num = 0.0;
+    let mut den = 0.0;
+    view.visit(&mut |g, _, u| {
+        let e = exact(g);
+        for a in 0..3 {
+            num += (u[a] - e[a]) * (u[a] - e[a]);
+            den += e[a] * e[a];
+        }
+    });
+    (num / den).sqrt()
+}
+
+/// Kinetic energy Σ ½|u|² of the fluid.
+pub(crate) fn kinetic_energy(view: &dyn FluidView) -> f64 {
+    let mut e = 0.0;
+    view.visit(&mut |_, _, u| e += 0.5 * (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]));
+    e
+}
+
+/// Steps for a wall-bounded flow to reach steady state to ~1e-13: the slowest viscous mode decays as
+/// exp(-π² ν t / H²), so t = 3.1 H² / ν.
+pub(crate) fn steady_steps(h: usize, nu: f64) -> u64 {
+    (3.1 * (h * h) as f64 / nu).ceil() as u64
+}

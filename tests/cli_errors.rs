@@ -1,0 +1,206 @@
+//! Bad input and unstable runs: a one-line message naming the key / file / cell, a non-zero exit, no panic,
+//! and never a summary that looks like a result.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("blockflow-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn configs() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs")
+}
+
+/// Runs `blockflow run` and returns (exit code, stderr).
+fn run(scene: &Path, args: &[&str], out: &Path) -> (i32, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+        .arg("run")
+        .arg(scene)
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .expect("binary runs");
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+/// Asserts a clean one-line failure whose message contains every needle.
+fn fails_cleanly(scene: &Path, args: &[&str], needles: &[&str]) {
+    let out = tmp(&needles.join("-").replace(['/', '.', ' ', '`'], "_"));
+    let (code, err) = run(scene, args, &out);
+    assert_ne!(code, 0, "expected failure for {args:?}");
+    assert!(
+        !err.contains("panicked") && !err.contains("RUST_BACKTRACE"),
+        "panic: {err}"
+    );
+    assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
+    for n in needles {
+        assert!(err.contains(n), "message lacks {n:?}: {err}");
+    }
+    assert!(
+        !out.join("summary.json").exists(),
+        "a failed run left a summary.json"
+    );
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+#[test]
+fn bad_values_name_their_key() {
+    let ch = configs().join("channel.toml");
+    fails_cleanly(&ch, &["--set", "fluid.tau=0.5"], &["fluid.tau", "> 0.5"]);
+    fails_cleanly(&ch, &["--set", "fluid.tau=0.3"], &["fluid.tau"]);
+    fails_cleanly(&ch, &["--set", "domain.blocks=[0,1,1]"], &["domain.blocks"]);
+    fails_cleanly(
+        &ch,
+        &["--set", "domain.blocks=[-1,1,1]"],
+        &["domain.blocks"],
+    );
+    fails_cleanly(
+        &ch,
+        &["--set", "domain.blocks=[3,1,1]"],
+        &["domain.blocks", "divisor"],
+    );
+    fails_cleanly(&ch, &["--set", "scene.resolution=0"], &["scene.resolution"]);
+    fails_cleanly(&ch, &["--set", "fluid.taux=0.7"], &["fluid", "taux"]);
+    fails_cleanly(&ch, &["--set", "scene.lid_velocity=0.1"], &["lid_velocity"]);
+    fails_cleanly(
+        &ch,
+        &["--set", "fluid.tau=fast"],
+        &["fluid.tau", "invalid type"],
+    );
+    fails_cleanly(
+        &ch,
+        &["--set", "fluid.precision=f16"],
+        &["fluid.precision", "f16"],
+    );
+    fails_cleanly(
+        &ch,
+        &["--set", "domain.periodic=[false,false,false]"],
+        &["domain.periodic"],
+    );
+    fails_cleanly(&ch, &["--set", "novalue"], &["--set novalue"]);
+}
+
+#[test]
+fn bad_files_name_the_file() {
+    let d = tmp("files");
+    let missing = d.join("nope.toml");
+    fails_cleanly(&missing, &[], &["nope.toml"]);
+    let broken = write(&d, "broken.toml", "[scene\nkind = \"channel\"\n");
+    fails_cleanly(&broken, &[], &["broken.toml", "line 1"]);
+    let unknown = write(
+        &d,
+        "unknown.toml",
+        "[scene]\nkind = \"channel\"\nresolutoin = 8\n",
+    );
+    fails_cleanly(&unknown, &[], &["unknown.toml", "resolutoin"]);
+    let kind = write(&d, "kind.toml", "[scene]\nkind = \"chanel\"\n");
+    fails_cleanly(&kind, &[], &["kind.toml", "chanel"]);
+    let noscene = write(&d, "noscene.toml", "[fluid]\ntau = 0.7\n");
+    fails_cleanly(&noscene, &[], &["noscene.toml", "scene"]);
+    let types = write(
+        &d,
+        "types.toml",
+        "[scene]\nkind = \"channel\"\nresolution = \"big\"\n",
+    );
+    fails_cleanly(&types, &[], &["types.toml", "scene", "resolution"]);
+    let garbage = d.join("garbage.toml");
+    std::fs::write(&garbage, [0xffu8, 0xfe, 0x00, 0x13, 0x37]).unwrap();
+    fails_cleanly(&garbage, &[], &["garbage.toml"]);
+}
+
+#[test]
+fn geometry_without_fluid_is_refused() {
+    let bx = configs().join("box.toml");
+    // the plane's fluid side lies entirely above the box
+    fails_cleanly(
+        &bx,
+        &["--set", "scene.planes=[{point=[0,100,0],normal=[0,1,0]}]"],
+        &["no fluid cell"],
+    );
+    fails_cleanly(
+        &bx,
+        &["--set", "scene.planes=[{point=[0,1,0],normal=[0,0,0]}]"],
+        &["scene.planes[0].normal"],
+    );
+}
+
+fn read_summary(dir: &Path) -> String {
+    std::fs::read_to_string(dir.join("summary.json")).expect("summary written")
+}
+
+#[test]
+fn unstable_run_is_reported_with_step_block_and_cell() {
+    // τ barely above 1/2 and U0 ~ 0.4: blows up within a few dozen steps.
+    let tg = configs().join("taylor_green.toml");
+    let out = tmp("unstable");
+    let (code, err) = run(
+        &tg,
+        &[
+            "--set",
+            "scene.resolution=16",
+            "--set",
+            "scene.reynolds=20000",
+            "--set",
+            "fluid.tau=0.501",
+            "--steps",
+            "500",
+        ],
+        &out,
+    );
+    assert_eq!(code, 3, "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1);
+    for n in ["unstable at step", "block", "cell", "density", "velocity"] {
+        assert!(err.contains(n), "{n}: {err}");
+    }
+    let s = read_summary(&out);
+    assert!(s.contains("\"status\": \"unstable\""), "{s}");
+    assert!(!s.contains("\"status\": \"ok\""));
+}
+
+#[test]
+fn stable_run_says_ok() {
+    let out = tmp("ok");
+    let (code, err) = run(&configs().join("couette.toml"), &["--steps", "50"], &out);
+    assert_eq!(code, 0, "{err}");
+    let s = read_summary(&out);
+    assert!(s.contains("\"status\": \"ok\""));
+    for key in [
+        "\"mlups\"",
+        "\"parts_seconds\"",
+        "\"checksum\"",
+        "\"fluid_cells\"",
+        "\"observables\"",
+    ] {
+        assert!(s.contains(key), "summary lacks {key}");
+    }
+    let csv = std::fs::read_to_string(out.join("series.csv")).unwrap();
+    assert!(csv.starts_with("step,time,mass"));
+    assert!(out.join("effective.toml").exists());
+}
+
+#[test]
+fn vtk_series_is_written() {
+    let out = tmp("vtk");
+    let (code, err) = run(
+        &configs().join("couette.toml"),
+        &["--steps", "20", "--vtk", "10"],
+        &out,
+    );
+    assert_eq!(code, 0, "{err}");
+    let pvd = std::fs::read_to_string(out.join("fluid.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet").count(), 3, "steps 0, 10, 20: {pvd}");
+    assert!(out.join("vtk/step_00000020.vtm").exists());
+}
