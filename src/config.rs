@@ -155,7 +155,7 @@ pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
         };
         Error::Config(format!("{origin}: {key}{inner}"))
     })?;
-    cfg.validate()?;
+    cfg.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
     Ok(cfg)
 }
 
