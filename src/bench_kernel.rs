@@ -9,9 +9,8 @@
 use blockflow_kernels::field::AlignedBuf;
 use blockflow_kernels::sweep::{full_segments, stream_collide};
 use blockflow_kernels::{Layout, PdfField, Real, TrtParams};
-use std::fmt::Write as _;
 use std::hint::black_box;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::Barrier;
 use std::time::Instant;
 
@@ -113,40 +112,34 @@ pub fn l3_bytes() -> usize {
 
 /// Copies `src` into `dst` with an explicit loop of ordinary (write-allocating) stores. The stores are
 /// volatile, so the compiler cannot turn the loop into `memcpy` (which uses non-temporal stores for large
-/// sizes); on x86_64 with AVX they are 32-byte `vmovapd`/`vmovupd`.
+/// sizes); on x86_64 with AVX they are 32-byte `vmovaps`.
 pub fn copy_plain(src: &[f64], dst: &mut [f64]) {
-    assert_eq!(src.len(), dst.len(), "copy_plain: length mismatch");
+    copy::<false>(src, dst);
+}
+
+/// Copies `src` into `dst` with non-temporal stores (`_mm256_stream_pd` with AVX, else `_mm_stream_pd`)
+/// followed by `_mm_sfence`. Plain stores where [`HAS_NT`] is false.
+pub fn copy_nt(src: &[f64], dst: &mut [f64]) {
+    copy::<true>(src, dst);
+}
+
+/// Shared body of [`copy_plain`] (`NT = false`) and [`copy_nt`], dispatching on the instruction set.
+fn copy<const NT: bool>(src: &[f64], dst: &mut [f64]) {
+    assert_eq!(src.len(), dst.len(), "copy: length mismatch");
     #[cfg(target_arch = "x86_64")]
     {
         if std::is_x86_feature_detected!("avx") {
             // SAFETY: AVX is available; lengths are equal.
-            return unsafe { x86::copy_avx::<false>(src, dst) };
+            return unsafe { x86::copy_avx::<NT>(src, dst) };
         }
         // SAFETY: SSE2 is baseline on x86_64; lengths are equal.
-        unsafe { x86::copy_sse2::<false>(src, dst) }
+        unsafe { x86::copy_sse2::<NT>(src, dst) }
     }
     #[cfg(not(target_arch = "x86_64"))]
     for (d, s) in dst.iter_mut().zip(src) {
         // SAFETY: `d` is a valid, aligned, exclusive reference.
         unsafe { std::ptr::write_volatile(d, *s) }
     }
-}
-
-/// Copies `src` into `dst` with non-temporal stores (`_mm256_stream_pd` with AVX, else `_mm_stream_pd`)
-/// followed by `_mm_sfence`. Falls back to [`copy_plain`] where [`HAS_NT`] is false.
-pub fn copy_nt(src: &[f64], dst: &mut [f64]) {
-    assert_eq!(src.len(), dst.len(), "copy_nt: length mismatch");
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::is_x86_feature_detected!("avx") {
-            // SAFETY: AVX is available; lengths are equal.
-            return unsafe { x86::copy_avx::<true>(src, dst) };
-        }
-        // SAFETY: SSE2 is baseline on x86_64; lengths are equal.
-        unsafe { x86::copy_sse2::<true>(src, dst) }
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    copy_plain(src, dst);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -185,7 +178,7 @@ mod x86 {
                         if NT {
                             $stream(d.add(i), v);
                         } else {
-                            write_volatile(d.add(i) as *mut $vec, v);
+                            write_volatile(d.add(i).cast::<$vec>(), v);
                         }
                         i += $lanes;
                     }
@@ -220,56 +213,48 @@ pub fn alloc_copy_pair(len: usize) -> (AlignedBuf<f64>, AlignedBuf<f64>) {
     (src, dst)
 }
 
-/// Runs `work` on `threads` scoped threads (each gets the shared start barrier) and collects the results.
-fn on_threads<R: Send>(threads: usize, work: impl Fn(&Barrier) -> R + Sync) -> Vec<R> {
-    let barrier = Barrier::new(threads);
-    std::thread::scope(|s| {
-        let handles: Vec<_> = (0..threads).map(|_| s.spawn(|| work(&barrier))).collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("benchmark thread panicked"))
-            .collect()
-    })
-}
-
-/// Best repetition over per-thread repetition times, where the slowest thread decides each repetition.
-fn best_of(per_thread: &[&[f64]]) -> f64 {
-    let reps = per_thread.iter().map(|t| t.len()).min().unwrap_or(0);
-    (0..reps)
-        .map(|r| per_thread.iter().map(|t| t[r]).fold(0.0, f64::max))
-        .fold(f64::INFINITY, f64::min)
-}
+/// A copy routine of the roofline.
+type CopyFn = fn(&[f64], &mut [f64]);
 
 /// Measures the copy roofline with `threads` threads, each copying its own pair of arrays of
-/// `array_bytes` bytes; best of `reps` repetitions.
+/// `array_bytes` bytes (allocated and first-touched by that thread); best of `reps` repetitions, where
+/// the slowest thread decides each repetition.
 pub fn measure_roofline(threads: usize, array_bytes: usize, reps: usize) -> Roofline {
     let threads = threads.max(1);
     let len = array_bytes / 8;
-    let per_thread = |barrier: &Barrier| {
-        let (src, mut dst) = alloc_copy_pair(len);
-        let (mut plain, mut nt) = (Vec::new(), Vec::new());
-        for _ in 0..reps.max(1) {
-            barrier.wait();
-            let t = Instant::now();
-            copy_plain(src.as_slice(), dst.as_mut_slice());
-            plain.push(t.elapsed().as_secs_f64());
-            barrier.wait();
-            let t = Instant::now();
-            copy_nt(src.as_slice(), dst.as_mut_slice());
-            nt.push(t.elapsed().as_secs_f64());
-        }
-        black_box(dst.as_slice());
-        (plain, nt)
+    let barrier = Barrier::new(threads);
+    let copies: [CopyFn; 2] = [copy_plain, copy_nt];
+    // Per thread, per repetition: seconds of the plain and the NT copy.
+    let times: Vec<Vec<[f64; 2]>> = std::thread::scope(|s| {
+        let work = || {
+            let (src, mut dst) = alloc_copy_pair(len);
+            let rep = |_| {
+                copies.map(|copy| {
+                    barrier.wait();
+                    let t = Instant::now();
+                    copy(src.as_slice(), dst.as_mut_slice());
+                    t.elapsed().as_secs_f64()
+                })
+            };
+            (0..reps.max(1)).map(rep).collect()
+        };
+        let handles: Vec<_> = (0..threads).map(|_| s.spawn(work)).collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().expect("roofline thread panicked"))
+            .collect()
+    });
+    let best = |k: usize| {
+        (0..reps.max(1))
+            .map(|r| times.iter().map(|t| t[r][k]).fold(0.0, f64::max))
+            .fold(f64::INFINITY, f64::min)
     };
-    let results = on_threads(threads, per_thread);
-    let plain = best_of(&results.iter().map(|r| &r.0[..]).collect::<Vec<_>>());
-    let nt = best_of(&results.iter().map(|r| &r.1[..]).collect::<Vec<_>>());
     let elems = (len * threads) as f64;
     Roofline {
         threads,
-        copy_gbs: 24.0 * elems / plain / 1e9,
+        copy_gbs: 24.0 * elems / best(0) / 1e9,
         copy_nt_gbs: if HAS_NT {
-            16.0 * elems / nt / 1e9
+            16.0 * elems / best(1) / 1e9
         } else {
             f64::NAN
         },
@@ -277,84 +262,116 @@ pub fn measure_roofline(threads: usize, array_bytes: usize, reps: usize) -> Roof
     }
 }
 
-/// How many timed steps the kernel runs per repetition.
-#[derive(Clone, Copy, Debug)]
-enum StepPlan {
-    Fixed(usize),
-    /// About this many seconds, from the slowest thread's warm-up step time.
-    Seconds(f64),
+/// Worker threads that each own one `size`³ block (a source/destination field pair), kept alive between
+/// timed batches so allocation and first touch are never timed. See [`with_fused_workers`].
+pub struct FusedWorkers {
+    barrier: Barrier,
+    steps: AtomicUsize,
+    stop: AtomicBool,
+    slowest: AtomicU64,
 }
 
-/// Runs the fused kernel on one `size`³ fluid block per thread: fields allocated and first-touched in the
-/// worker, 2 warm-up steps, then `reps` timed repetitions. Returns (steps per repetition, best seconds).
-fn fused_timing<T: Real>(size: usize, threads: usize, plan: StepPlan, reps: usize) -> (usize, f64) {
+impl FusedWorkers {
+    /// Runs `steps` fused stream-collide steps on every worker, all released together by a barrier, and
+    /// returns the slowest worker's seconds.
+    pub fn time(&self, steps: usize) -> f64 {
+        self.slowest.store(0, Ordering::SeqCst);
+        self.steps.store(steps, Ordering::SeqCst);
+        self.barrier.wait();
+        self.barrier.wait();
+        f64::from_bits(self.slowest.load(Ordering::SeqCst))
+    }
+}
+
+/// Stops the workers when the driver returns or unwinds.
+struct StopGuard<'a>(&'a FusedWorkers);
+
+impl Drop for StopGuard<'_> {
+    fn drop(&mut self) {
+        self.0.stop.store(true, Ordering::SeqCst);
+        self.0.barrier.wait();
+    }
+}
+
+/// Starts `threads` workers, each allocating and first-touching its own periodic fluid block of `size`³
+/// cells (precision `T`) and running 2 warm-up steps, then calls `driver` with the handle that times
+/// batches of steps. The ghost layer is not refreshed: this is the fused kernel alone.
+pub fn with_fused_workers<T: Real, R>(
+    size: usize,
+    threads: usize,
+    driver: impl FnOnce(&FusedWorkers) -> R,
+) -> R {
     let threads = threads.max(1);
     let size = size.max(1);
-    let warm_step = AtomicU64::new(0);
+    let w = FusedWorkers {
+        barrier: Barrier::new(threads + 1),
+        steps: AtomicUsize::new(0),
+        stop: AtomicBool::new(false),
+        slowest: AtomicU64::new(0),
+    };
     let params = TrtParams {
         tau: 0.6,
         magic: 3.0 / 16.0,
         force: [0.0; 3],
     };
-    let per_thread = |barrier: &Barrier| {
+    let worker = || {
         let layout = Layout::new::<T>([size; 3]);
         let segs = full_segments(&layout);
         let mut a = PdfField::<T>::new(layout, 0);
         let mut b = PdfField::<T>::new(layout, PAIR_SKEW_BYTES);
         a.data_mut().fill(T::ZERO);
         b.data_mut().fill(T::ZERO);
-        barrier.wait();
-        let t = Instant::now();
-        for _ in 0..2 {
-            black_box(stream_collide(&a, &mut b, &segs, &params));
-            std::mem::swap(&mut a, &mut b);
-        }
-        // Positive f64 order like their bits, so fetch_max keeps the slowest thread's step time.
-        warm_step.fetch_max(
-            (t.elapsed().as_secs_f64() / 2.0).to_bits(),
-            Ordering::Relaxed,
-        );
-        barrier.wait();
-        let steps = match plan {
-            StepPlan::Fixed(n) => n,
-            StepPlan::Seconds(s) => {
-                (s / f64::from_bits(warm_step.load(Ordering::Relaxed))).round() as usize
-            }
-        }
-        .clamp(1, 1 << 20);
-        let mut times = Vec::new();
-        for _ in 0..reps.max(1) {
-            barrier.wait();
-            let t = Instant::now();
+        let mut step = |steps: usize| {
             for _ in 0..steps {
                 black_box(stream_collide(&a, &mut b, &segs, &params));
                 std::mem::swap(&mut a, &mut b);
             }
-            times.push(t.elapsed().as_secs_f64());
+        };
+        step(2);
+        loop {
+            w.barrier.wait();
+            if w.stop.load(Ordering::SeqCst) {
+                break;
+            }
+            let t = Instant::now();
+            step(w.steps.load(Ordering::SeqCst));
+            // Positive f64 order like their bits, so fetch_max keeps the slowest worker's time.
+            w.slowest
+                .fetch_max(t.elapsed().as_secs_f64().to_bits(), Ordering::SeqCst);
+            w.barrier.wait();
         }
-        black_box(a.data());
-        (steps, times)
     };
-    let results = on_threads(threads, per_thread);
-    (
-        results[0].0,
-        best_of(&results.iter().map(|r| &r.1[..]).collect::<Vec<_>>()),
-    )
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(worker);
+        }
+        let guard = StopGuard(&w);
+        // An empty batch waits until every worker has allocated its block and run the warm-up steps.
+        w.time(0);
+        driver(guard.0)
+    })
 }
 
 /// Seconds for `steps` fused stream-collide steps on one `size`³ block per thread, `threads` threads
 /// started together (slowest thread; allocation, first touch and 2 warm-up steps excluded).
 pub fn run_fused<T: Real>(size: usize, steps: usize, threads: usize) -> f64 {
-    fused_timing::<T>(size, threads, StepPlan::Fixed(steps), 1).1
+    with_fused_workers::<T, _>(size, threads, |w| w.time(steps))
 }
 
+/// Measures one kernel row of precision `T` with the thread count of `roofline`, about `seconds` timed.
 fn kernel_row<T: Real>(size: usize, roofline: &Roofline, seconds: f64) -> KernelBenchRow {
-    let (steps, secs) =
-        fused_timing::<T>(size, roofline.threads, StepPlan::Seconds(seconds / 3.0), 3);
+    // One step to estimate the step time, then the best of 3 repetitions of about `seconds / 3` each.
+    let (steps, secs) = with_fused_workers::<T, _>(size, roofline.threads, |w| {
+        let steps = ((seconds / 3.0 / w.time(1)).round() as usize).clamp(1, 1 << 20);
+        (
+            steps,
+            (0..3).map(|_| w.time(steps)).fold(f64::INFINITY, f64::min),
+        )
+    });
     let mlups = (roofline.threads * size.max(1).pow(3) * steps) as f64 / secs / 1e6;
     let (wa, nwa) = bytes_per_cell::<T>();
-    let roofline_plain_mlups = roofline.copy_gbs * 1e9 / wa;
-    let roofline_nt_mlups = roofline.copy_nt_gbs * 1e9 / nwa;
+    let roofline_plain_mlups = roofline.copy_gbs * 1e3 / wa;
+    let roofline_nt_mlups = roofline.copy_nt_gbs * 1e3 / nwa;
     KernelBenchRow {
         precision: T::NAME,
         threads: roofline.threads,
@@ -396,6 +413,7 @@ pub fn run(opts: &KernelBenchOptions) -> KernelBenchReport {
     }
 }
 
+/// CPU model name from /proc/cpuinfo.
 fn cpu_model() -> String {
     std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -408,6 +426,7 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".to_string())
 }
 
+/// `v` with `digits` decimals, or "n/a" when not finite.
 fn num(v: f64, digits: usize) -> String {
     if v.is_finite() {
         format!("{v:.digits$}")
@@ -416,62 +435,61 @@ fn num(v: f64, digits: usize) -> String {
     }
 }
 
+/// One markdown table row from its cells.
+fn table_row(cells: &[String]) -> String {
+    format!("| {} |\n", cells.join(" | "))
+}
+
 impl KernelBenchReport {
     /// Markdown table as printed by `blockflow bench kernel`.
     pub fn to_markdown(&self) -> String {
         let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-        let l3 = l3_bytes();
-        let mut s = String::new();
-        let _ = writeln!(
-            s,
-            "Machine: {}, {cores} cores, L3 {} MiB\n",
+        let mut s = format!(
+            "Machine: {}, {cores} cores, L3 {} MiB\n\n",
             cpu_model(),
-            l3 >> 20
+            l3_bytes() >> 20
         );
         if let Some(r) = self.rooflines.first() {
-            let _ = writeln!(
-                s,
-                "Roofline: copy of f64 arrays, {} MiB each, one pair per thread\n",
-                r.array_bytes >> 20
-            );
+            let mib = r.array_bytes >> 20;
+            s += &format!("Roofline: copy of f64 arrays of {mib} MiB, one pair per thread, best of several runs\n\n");
         }
-        s.push_str("| threads | copy GB/s (plain, 24 B/elem) | copy GB/s (NT, 16 B/elem) ");
-        s.push_str("| roofline f64 MLUPS (456 B) | roofline f64 MLUPS NT (304 B) |\n|---:|---:|---:|---:|---:|\n");
+        s += "| threads | copy GB/s (plain, 24 B/elem) | copy GB/s (NT, 16 B/elem) ";
+        s += "| roofline f64 MLUPS (456 B) | roofline f64 MLUPS NT (304 B) |\n|---:|---:|---:|---:|---:|\n";
+        let (wa, nwa) = bytes_per_cell::<f64>();
         for r in &self.rooflines {
-            let (wa, nwa) = bytes_per_cell::<f64>();
-            let _ = writeln!(
-                s,
-                "| {} | {} | {} | {} | {} |",
-                r.threads,
-                num(r.copy_gbs, 1),
-                num(r.copy_nt_gbs, 1),
-                num(r.copy_gbs * 1e9 / wa / 1e6, 1),
-                num(r.copy_nt_gbs * 1e9 / nwa / 1e6, 1)
-            );
+            let (plain, nt) = (r.copy_gbs, r.copy_nt_gbs);
+            s += &table_row(&[
+                r.threads.to_string(),
+                num(plain, 1),
+                num(nt, 1),
+                num(plain * 1e3 / wa, 1),
+                num(nt * 1e3 / nwa, 1),
+            ]);
         }
-        let n = self.size;
-        let _ = writeln!(
-            s,
-            "\nFused stream-collide kernel (TRT), one periodic {n}^3 fluid block per thread\n"
+        s += &format!(
+            "\nFused stream-collide kernel (TRT), one periodic {}^3 fluid block per thread\n\n",
+            self.size
         );
-        s.push_str("| precision | threads | MLUPS | % of write-allocate roofline (456 B) | % of NT roofline (304 B) |\n");
-        s.push_str("|---|---:|---:|---:|---:|\n");
+        s += "| precision | threads | MLUPS | % of write-allocate roofline (456 B) | % of NT roofline (304 B) |\n";
+        s += "|---|---:|---:|---:|---:|\n";
         for r in &self.rows {
-            let _ = writeln!(
-                s,
-                "| {} | {} | {} | {} | {} |",
-                r.precision,
-                r.threads,
-                num(r.mlups, 1),
+            let (wa, nt) = (
                 num(r.pct_write_allocate, 0),
-                num(r.pct_no_write_allocate, 0)
+                num(r.pct_no_write_allocate, 0),
             );
+            s += &table_row(&[
+                r.precision.to_string(),
+                r.threads.to_string(),
+                num(r.mlups, 1),
+                wa,
+                nt,
+            ]);
         }
-        s.push_str("\nThe fused kernel alone: ghost exchange excluded (the ghost layer is not refreshed). ");
-        s.push_str("f32 rows use 228 B / 152 B per cell.\n");
-        s.push_str("Reference: waLBerla fused TRT measured on this machine: 34.7 MLUPS (1 core), 66 (2 cores); ");
-        s.push_str("lbmpy AVX2: ~36 f64 / ~69 f32 at 1 thread.\n");
-        s.push_str("Target: f64 at 1 thread >= 75 % of the write-allocate roofline");
+        s += "\n- The fused kernel alone: ghost exchange excluded (the ghost layer is not refreshed). ";
+        s += "f32 rows use 228 B / 152 B per cell.\n";
+        s += "- Reference: waLBerla fused TRT measured on this machine: 34.7 MLUPS (1 core), 66 (2 cores); ";
+        s += "lbmpy AVX2: ~36 f64 / ~69 f32 at 1 thread.\n";
+        s += "- Target: f64 at 1 thread >= 75 % of the write-allocate roofline";
         match self
             .rows
             .iter()
@@ -483,9 +501,9 @@ impl KernelBenchReport {
                 } else {
                     "not met"
                 };
-                let _ = writeln!(s, ": {} % ({verdict}).", num(r.pct_write_allocate, 0));
+                s += &format!(": {} % ({verdict}).\n", num(r.pct_write_allocate, 1));
             }
-            _ => s.push_str(".\n"),
+            _ => s += ".\n",
         }
         s
     }

@@ -225,30 +225,28 @@ impl<T: Real> Block<T> {
     }
 }
 
-/// The ghost cells (ghost-inclusive coordinates) of the region at neighbour offset `off`.
-pub fn ghost_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
-    let r = |a: usize| match off[a] {
+/// Ghost-inclusive coordinate ranges (x, y, z) of the ghost region at neighbour offset `off`.
+pub fn ghost_ranges(l: &Layout, off: [i32; 3]) -> [std::ops::RangeInclusive<usize>; 3] {
+    std::array::from_fn(|a| match off[a] {
         -1 => 0..=0,
         0 => 1..=l.size[a],
         _ => l.size[a] + 1..=l.size[a] + 1,
-    };
-    let (rx, ry, rz) = (r(0), r(1), r(2));
-    rz.flat_map(move |z| {
-        let rx = rx.clone();
-        ry.clone()
-            .flat_map(move |y| rx.clone().map(move |x| (x, y, z)))
     })
 }
 
-/// The interior cells of a sending block that fill a receiver's ghost region at offset `off` (the layer
-/// adjacent to the opposite face), in the same order as [`ghost_region`].
-pub fn source_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
-    let r = |a: usize| match off[a] {
+/// Coordinate ranges of the interior cells of a sending block that fill a receiver's ghost region at
+/// offset `off` (the layer next to the opposite face); same shape and order as [`ghost_ranges`].
+pub fn source_ranges(l: &Layout, off: [i32; 3]) -> [std::ops::RangeInclusive<usize>; 3] {
+    std::array::from_fn(|a| match off[a] {
         -1 => l.size[a]..=l.size[a],
         0 => 1..=l.size[a],
         _ => 1..=1,
-    };
-    let (rx, ry, rz) = (r(0), r(1), r(2));
+    })
+}
+
+/// The ghost cells of the region at neighbour offset `off`, z slowest.
+pub fn ghost_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
+    let [rx, ry, rz] = ghost_ranges(l, off);
     rz.flat_map(move |z| {
         let rx = rx.clone();
         ry.clone()

@@ -114,8 +114,15 @@ pub fn execute(cli: Cli) -> Result<()> {
                 threads,
             };
             let report = crate::bench_kernel::run(&opts);
-            println!("{}", report.to_markdown());
+            print_out(&format!("{}\n", report.to_markdown()));
             Ok(())
         }
     }
+}
+
+/// Writes to stdout, ignoring a closed pipe (`blockflow run ... | head` must not panic).
+fn print_out(text: &str) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    let _ = out.write_all(text.as_bytes()).and_then(|_| out.flush());
 }

@@ -155,7 +155,8 @@ pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
         };
         Error::Config(format!("{origin}: {key}{inner}"))
     })?;
-    cfg.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
+    cfg.validate()
+        .map_err(|e| Error::Config(format!("{origin}: {e}")))?;
     Ok(cfg)
 }
 
@@ -202,19 +203,19 @@ impl Config {
     /// Checks the generic keys; scenes check their own.
     pub fn validate(&self) -> Result<()> {
         if let Some(t) = self.fluid.tau {
-            if !(t > 0.5) || !t.is_finite() {
+            if t.is_nan() || t <= 0.5 || !t.is_finite() {
                 return config_err(format!(
                     "fluid.tau = {t}: must be a finite number > 0.5 (ν = (τ - 1/2)/3 must be positive)"
                 ));
             }
         }
-        if !(self.fluid.magic > 0.0) || !self.fluid.magic.is_finite() {
+        if self.fluid.magic.is_nan() || self.fluid.magic <= 0.0 || !self.fluid.magic.is_finite() {
             return config_err(format!(
                 "fluid.magic = {}: must be a finite number > 0 (default 0.1875)",
                 self.fluid.magic
             ));
         }
-        if !(self.fluid.velocity_limit > 0.0) {
+        if self.fluid.velocity_limit.is_nan() || self.fluid.velocity_limit <= 0.0 {
             return config_err(format!(
                 "fluid.velocity_limit = {}: must be > 0 (default 0.5)",
                 self.fluid.velocity_limit

@@ -7,22 +7,29 @@
 //! → pull-stream + collide into the other field → swap. This is Algorithm 1's collide → communicate →
 //! boundary → stream with the cycle cut after the collision.
 
-use crate::block::{ghost_region, source_region, Block};
+use crate::block::{ghost_ranges, source_ranges, Block};
 use crate::config::KernelChoice;
 use blockflow_kernels::d3q19::Q;
 use blockflow_kernels::sweep::{self, SweepStats};
 use blockflow_kernels::{Real, TrtParams};
 
 /// Packs the PDFs the receiver's ghost region at offset `off` needs from `sender` (directions `dirs`,
-/// interior layer next to the shared face/edge) into `buf`. Inside a process the same data could be
-/// copied directly; a packed message is what crosses processes (and an MPI backend would send).
+/// interior layer next to the shared face/edge) into `buf`, row by row. Inside a process the same data
+/// could be copied directly; a packed message is what crosses processes (and an MPI backend would send).
 pub fn pack<T: Real>(sender: &Block<T>, off: [i32; 3], dirs: &[usize], buf: &mut Vec<T>) {
     buf.clear();
     let l = &sender.layout;
     let f = sender.src.data();
+    let [rx, ry, rz] = source_ranges(l, off);
+    let n = rx.end() - rx.start() + 1;
     for &q in dirs {
         let base = q * l.stride;
-        buf.extend(source_region(l, off).map(|(x, y, z)| f[base + l.idx(x, y, z)]));
+        for z in rz.clone() {
+            for y in ry.clone() {
+                let i = base + l.idx(*rx.start(), y, z);
+                buf.extend_from_slice(&f[i..i + n]);
+            }
+        }
     }
 }
 
@@ -30,14 +37,20 @@ pub fn pack<T: Real>(sender: &Block<T>, off: [i32; 3], dirs: &[usize], buf: &mut
 pub fn unpack<T: Real>(receiver: &mut Block<T>, off: [i32; 3], dirs: &[usize], buf: &[T]) {
     let l = receiver.layout;
     let f = receiver.src.data_mut();
-    let mut it = buf.iter();
+    let [rx, ry, rz] = ghost_ranges(&l, off);
+    let n = rx.end() - rx.start() + 1;
+    let mut k = 0;
     for &q in dirs {
         let base = q * l.stride;
-        for (x, y, z) in ghost_region(&l, off) {
-            f[base + l.idx(x, y, z)] = *it.next().expect("message shorter than the ghost region");
+        for z in rz.clone() {
+            for y in ry.clone() {
+                let i = base + l.idx(*rx.start(), y, z);
+                f[i..i + n].copy_from_slice(&buf[k..k + n]);
+                k += n;
+            }
         }
     }
-    debug_assert!(it.next().is_none(), "message longer than the ghost region");
+    assert_eq!(k, buf.len(), "message size does not match the ghost region");
 }
 
 /// Boundary pass (eq. 6 with δ_q = 1/2): writes the bounce-back values of all links into the wall cells.
@@ -83,7 +96,7 @@ pub fn find_bad_cell<T: Real>(
         }
         let (r, u) = cell_moments(b, i, force);
         let u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
-        if !r.is_finite() || !(u2 <= limit * limit) {
+        if !r.is_finite() || u2.is_nan() || u2 > limit * limit {
             found = Some((g, r, u));
         }
     });

@@ -32,7 +32,7 @@ impl Plane {
     /// A plane through `point` with normal `normal` (normalised here) pointing into the fluid.
     pub fn through(point: [f64; 3], normal: [f64; 3], velocity: [f64; 3]) -> Option<Plane> {
         let len = (normal[0] * normal[0] + normal[1] * normal[1] + normal[2] * normal[2]).sqrt();
-        if !(len > 0.0) || !len.is_finite() {
+        if len.is_nan() || len <= 0.0 || !len.is_finite() {
             return None;
         }
         let n = [normal[0] / len, normal[1] / len, normal[2] / len];

@@ -144,7 +144,7 @@ impl<T: Real> Simulation<T> {
             work.sweeps += 1;
             tb += (s1 - s0).as_secs_f64();
             tl += s1.elapsed().as_secs_f64();
-            if (st.nonfinite || !(st.max_u2 <= limit2)) && bad.is_none() {
+            if (st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2) && bad.is_none() {
                 bad = Some(b.id);
             }
         }

@@ -77,7 +77,7 @@ impl Layout {
 
     /// Whether the interior is empty (never true for a valid block).
     pub fn is_empty(&self) -> bool {
-        self.size.iter().any(|&s| s == 0)
+        self.size.contains(&0)
     }
 
     /// Interior cell count.

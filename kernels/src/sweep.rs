@@ -165,8 +165,8 @@ unsafe fn stream_impl<T: Real>(
     offs: &[isize; Q],
     segs: &[Segment],
 ) {
-    for q in 0..Q {
-        let sp = src.add(q * stride).offset(-offs[q]);
+    for (q, &off) in offs.iter().enumerate() {
+        let sp = src.add(q * stride).offset(-off);
         let dp = dst.add(q * stride);
         for s in segs {
             std::ptr::copy_nonoverlapping(sp.add(s.start), dp.add(s.start), s.len);
