@@ -6,13 +6,9 @@
 //! its throughput is in cells, so criterion's Melem/s are MLUPS. The workers and their blocks persist
 //! across samples; allocation, first touch and warm-up steps are not timed.
 
-use blockflow::bench_kernel::{
-    alloc_copy_pair, copy_nt, copy_plain, l3_bytes, with_fused_workers, HAS_NT,
-};
+use blockflow::bench_kernel::{alloc_copy_pair, copy_nt, copy_plain, l3_bytes, with_fused_workers, HAS_NT};
 use blockflow_kernels::Real;
-use criterion::{
-    criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode, Throughput,
-};
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode, Throughput};
 use std::time::Duration;
 
 /// Cells per edge of each thread's block.
@@ -30,9 +26,7 @@ fn roofline(c: &mut Criterion) {
     });
     if HAS_NT {
         g.throughput(Throughput::BytesDecimal((16 * len) as u64));
-        g.bench_function("copy_nt", |b| {
-            b.iter(|| copy_nt(src.as_slice(), dst.as_mut_slice()))
-        });
+        g.bench_function("copy_nt", |b| b.iter(|| copy_nt(src.as_slice(), dst.as_mut_slice())));
     }
     g.finish();
 }
@@ -49,9 +43,7 @@ fn fused<T: Real>(c: &mut Criterion) {
         let id = BenchmarkId::new(format!("{}_{SIZE}^3", T::NAME), format!("{threads}t"));
         with_fused_workers::<T, _>(SIZE, threads, |w| {
             g.bench_function(id, |b| {
-                b.iter_custom(|iters| {
-                    Duration::from_secs_f64(w.time(usize::try_from(iters).expect("iterations")))
-                });
+                b.iter_custom(|iters| Duration::from_secs_f64(w.time(usize::try_from(iters).expect("iterations"))));
             });
         });
     }

@@ -99,10 +99,7 @@ pub fn l3_bytes() -> usize {
             'G' => (&s[..s.len() - 1], 1 << 30),
             _ => (s, 1),
         };
-        num.parse::<usize>()
-            .ok()
-            .map(|n| n * mult)
-            .filter(|&n| n > 0)
+        num.parse::<usize>().ok().map(|n| n * mult).filter(|&n| n > 0)
     };
     std::fs::read_to_string("/sys/devices/system/cpu/cpu0/cache/index3/size")
         .ok()
@@ -190,14 +187,7 @@ mod x86 {
             }
         };
     }
-    copy_fn!(
-        copy_avx,
-        "avx",
-        4,
-        __m256d,
-        _mm256_loadu_pd,
-        _mm256_stream_pd
-    );
+    copy_fn!(copy_avx, "avx", 4, __m256d, _mm256_loadu_pd, _mm256_stream_pd);
     copy_fn!(copy_sse2, "sse2", 2, __m128d, _mm_loadu_pd, _mm_stream_pd);
 }
 
@@ -253,11 +243,7 @@ pub fn measure_roofline(threads: usize, array_bytes: usize, reps: usize) -> Roof
     Roofline {
         threads,
         copy_gbs: 24.0 * elems / best(0) / 1e9,
-        copy_nt_gbs: if HAS_NT {
-            16.0 * elems / best(1) / 1e9
-        } else {
-            f64::NAN
-        },
+        copy_nt_gbs: if HAS_NT { 16.0 * elems / best(1) / 1e9 } else { f64::NAN },
         array_bytes: len * 8,
     }
 }
@@ -296,11 +282,7 @@ impl Drop for StopGuard<'_> {
 /// Starts `threads` workers, each allocating and first-touching its own periodic fluid block of `size`³
 /// cells (precision `T`) and running 2 warm-up steps, then calls `driver` with the handle that times
 /// batches of steps. The ghost layer is not refreshed: this is the fused kernel alone.
-pub fn with_fused_workers<T: Real, R>(
-    size: usize,
-    threads: usize,
-    driver: impl FnOnce(&FusedWorkers) -> R,
-) -> R {
+pub fn with_fused_workers<T: Real, R>(size: usize, threads: usize, driver: impl FnOnce(&FusedWorkers) -> R) -> R {
     let threads = threads.max(1);
     let size = size.max(1);
     let w = FusedWorkers {
@@ -363,10 +345,7 @@ fn kernel_row<T: Real>(size: usize, roofline: &Roofline, seconds: f64) -> Kernel
     // One step to estimate the step time, then the best of 3 repetitions of about `seconds / 3` each.
     let (steps, secs) = with_fused_workers::<T, _>(size, roofline.threads, |w| {
         let steps = ((seconds / 3.0 / w.time(1)).round() as usize).clamp(1, 1 << 20);
-        (
-            steps,
-            (0..3).map(|_| w.time(steps)).fold(f64::INFINITY, f64::min),
-        )
+        (steps, (0..3).map(|_| w.time(steps)).fold(f64::INFINITY, f64::min))
     });
     let mlups = (roofline.threads * size.max(1).pow(3) * steps) as f64 / secs / 1e6;
     let (wa, nwa) = bytes_per_cell::<T>();
@@ -401,11 +380,7 @@ pub fn run(opts: &KernelBenchOptions) -> KernelBenchReport {
         .iter()
         .map(|r| kernel_row::<f64>(opts.size, r, seconds))
         .collect();
-    rows.extend(
-        rooflines
-            .iter()
-            .map(|r| kernel_row::<f32>(opts.size, r, seconds)),
-    );
+    rows.extend(rooflines.iter().map(|r| kernel_row::<f32>(opts.size, r, seconds)));
     KernelBenchReport {
         size: opts.size.max(1),
         rooflines,
@@ -473,34 +448,17 @@ impl KernelBenchReport {
         s += "| precision | threads | MLUPS | % of write-allocate roofline (456 B) | % of NT roofline (304 B) |\n";
         s += "|---|---:|---:|---:|---:|\n";
         for r in &self.rows {
-            let (wa, nt) = (
-                num(r.pct_write_allocate, 0),
-                num(r.pct_no_write_allocate, 0),
-            );
-            s += &table_row(&[
-                r.precision.to_string(),
-                r.threads.to_string(),
-                num(r.mlups, 1),
-                wa,
-                nt,
-            ]);
+            let (wa, nt) = (num(r.pct_write_allocate, 0), num(r.pct_no_write_allocate, 0));
+            s += &table_row(&[r.precision.to_string(), r.threads.to_string(), num(r.mlups, 1), wa, nt]);
         }
         s += "\n- The fused kernel alone: ghost exchange excluded (the ghost layer is not refreshed). ";
         s += "f32 rows use 228 B / 152 B per cell.\n";
         s += "- Reference: waLBerla fused TRT measured on this machine: 34.7 MLUPS (1 core), 66 (2 cores); ";
         s += "lbmpy AVX2: ~36 f64 / ~69 f32 at 1 thread.\n";
         s += "- Target: f64 at 1 thread >= 75 % of the write-allocate roofline";
-        match self
-            .rows
-            .iter()
-            .find(|r| r.precision == "f64" && r.threads == 1)
-        {
+        match self.rows.iter().find(|r| r.precision == "f64" && r.threads == 1) {
             Some(r) if r.pct_write_allocate.is_finite() => {
-                let verdict = if r.pct_write_allocate >= 75.0 {
-                    "met"
-                } else {
-                    "not met"
-                };
+                let verdict = if r.pct_write_allocate >= 75.0 { "met" } else { "not met" };
                 s += &format!(": {} % ({verdict}).\n", num(r.pct_write_allocate, 1));
             }
             _ => s += ".\n",

@@ -7,6 +7,7 @@ use blockflow_kernels::bounce_back::Links;
 use blockflow_kernels::d3q19::{crossing_directions, C, Q};
 use blockflow_kernels::sweep::Segment;
 use blockflow_kernels::{Layout, PdfField, Real};
+use std::cell::UnsafeCell;
 
 /// Byte skew of a block's second field against the first, so source and destination arrays do not alias
 /// on 4 KiB pages either.
@@ -33,10 +34,10 @@ pub struct Block<T: Real> {
     pub origin: [usize; 3],
     /// Index arithmetic of both fields.
     pub layout: Layout,
-    /// Current state (post-collision PDFs between steps; ghosts filled by exchange, walls by boundary).
-    pub src: PdfField<T>,
-    /// Destination of the next stream.
-    pub dst: PdfField<T>,
+    /// The two PDF fields. After `s` steps the state (post-collision PDFs) is in `fields[s % 2]`; step
+    /// `s + 1` fills that field's ghost layer and wall cells, then streams and collides into the other one.
+    /// Behind `UnsafeCell` so tasks of the step graph can work on disjoint regions concurrently.
+    fields: [UnsafeCell<PdfField<T>>; 2],
     /// Flag byte per cell, indexed like the fields (ghost layer included).
     pub flags: Vec<u8>,
     /// Runs of fluid cells along x: what the kernels sweep.
@@ -171,8 +172,10 @@ impl<T: Real> Block<T> {
             coords: d.coords(id),
             origin,
             layout,
-            src: PdfField::new(layout, 0),
-            dst: PdfField::new(layout, DST_SKEW_BYTES),
+            fields: [
+                UnsafeCell::new(PdfField::new(layout, 0)),
+                UnsafeCell::new(PdfField::new(layout, DST_SKEW_BYTES)),
+            ],
             flags: fl,
             segments,
             links,
@@ -183,20 +186,41 @@ impl<T: Real> Block<T> {
         }
     }
 
-    /// Sets every fluid cell to the post-collision state `f(global cell)` (zero-centred PDFs).
+    /// Field `p` (0 or 1) for reading. Callers must not hold it across a concurrent writer of the same
+    /// elements; the step graph guarantees that (see `pipeline`).
+    #[inline]
+    pub fn field(&self, p: usize) -> &PdfField<T> {
+        // SAFETY: a shared view; concurrent writes only go through raw pointers to elements that no
+        // reader of this view touches at the same time (ordered by the task graph).
+        unsafe { &*self.fields[p].get() }
+    }
+
+    /// Field `p` for writing through a shared block reference.
+    ///
+    /// # Safety
+    /// No other reference to field `p` may be alive or created until the returned one is dropped.
+    #[inline]
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn field_mut(&self, p: usize) -> &mut PdfField<T> {
+        &mut *self.fields[p].get()
+    }
+
+    /// Field `p` for writing with exclusive access to the block.
+    pub fn field_excl(&mut self, p: usize) -> &mut PdfField<T> {
+        self.fields[p].get_mut()
+    }
+
+    /// Sets every fluid cell of field 0 (the state after 0 steps) to the post-collision state
+    /// `f(global cell)` (zero-centred PDFs).
     pub fn init(&mut self, mut f: impl FnMut([usize; 3]) -> [f64; Q]) {
         let l = self.layout;
         for s in &self.segments {
             let [x0, y, z] = l.coords(s.start);
             for x in x0..x0 + s.len {
-                let g = [
-                    self.origin[0] + x - 1,
-                    self.origin[1] + y - 1,
-                    self.origin[2] + z - 1,
-                ];
+                let g = [self.origin[0] + x - 1, self.origin[1] + y - 1, self.origin[2] + z - 1];
                 let v = f(g);
                 let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(v[q]));
-                self.src.set_cell(l.idx(x, y, z), &cell);
+                self.fields[0].get_mut().set_cell(l.idx(x, y, z), &cell);
             }
         }
     }
@@ -208,11 +232,7 @@ impl<T: Real> Block<T> {
             let [x0, y, z] = l.coords(s.start);
             for x in x0..x0 + s.len {
                 visit(
-                    [
-                        self.origin[0] + x - 1,
-                        self.origin[1] + y - 1,
-                        self.origin[2] + z - 1,
-                    ],
+                    [self.origin[0] + x - 1, self.origin[1] + y - 1, self.origin[2] + z - 1],
                     l.idx(x, y, z),
                 );
             }
@@ -244,12 +264,18 @@ pub fn source_ranges(l: &Layout, off: [i32; 3]) -> [std::ops::RangeInclusive<usi
     })
 }
 
+// SAFETY: a block is shared between the worker threads of the step graph. Everything except the two
+// fields is read-only while the graph runs; the fields are written only (a) through raw pointers to ghost
+// cells and wall cells by the exchange and boundary tasks and (b) through `field_mut` by the sweep, which
+// writes the field nobody else reads during that step. The graph's edges order every pair of tasks whose
+// accesses to the same elements conflict (documented in `pipeline`).
+unsafe impl<T: Real> Sync for Block<T> {}
+
 /// The ghost cells of the region at neighbour offset `off`, z slowest.
 pub fn ghost_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
     let [rx, ry, rz] = ghost_ranges(l, off);
     rz.flat_map(move |z| {
         let rx = rx.clone();
-        ry.clone()
-            .flat_map(move |y| rx.clone().map(move |x| (x, y, z)))
+        ry.clone().flat_map(move |y| rx.clone().map(move |x| (x, y, z)))
     })
 }

@@ -88,31 +88,18 @@ pub fn execute(cli: Cli) -> Result<()> {
             for (k, v) in &s.observables {
                 println!("  {k} = {v:.6e}");
             }
-            println!(
-                "  checksum {}; results in {}",
-                s.checksum.fluid,
-                dir.display()
-            );
+            println!("  checksum {}; results in {}", s.checksum.fluid, dir.display());
             Ok(())
         }
         Command::Bench {
-            which:
-                BenchKind::Kernel {
-                    quick,
-                    size,
-                    threads,
-                },
+            which: BenchKind::Kernel { quick, size, threads },
         } => {
             if size < 8 || threads.is_empty() || threads.contains(&0) {
                 return Err(Error::Config(
                     "bench kernel: --size must be at least 8 and --threads positive".into(),
                 ));
             }
-            let opts = crate::bench_kernel::KernelBenchOptions {
-                quick,
-                size,
-                threads,
-            };
+            let opts = crate::bench_kernel::KernelBenchOptions { quick, size, threads };
             let report = crate::bench_kernel::run(&opts);
             print_out(&format!("{}\n", report.to_markdown()));
             Ok(())

@@ -111,8 +111,8 @@ pub struct RunConfig {
 
 /// Reads a scene file, applies `--set` overrides and validates the generic keys.
 pub fn load(path: &Path, overrides: &[String]) -> Result<Config> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| Error::Config(format!("cannot read {}: {e}", path.display())))?;
+    let text =
+        std::fs::read_to_string(path).map_err(|e| Error::Config(format!("cannot read {}: {e}", path.display())))?;
     parse(&text, &path.display().to_string(), overrides)
 }
 
@@ -127,18 +127,13 @@ pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
                 format!(" at line {line}, column {col}")
             })
             .unwrap_or_default();
-        Error::Config(format!(
-            "{origin}: TOML syntax error{pos}: {}",
-            one_line(e.message())
-        ))
+        Error::Config(format!("{origin}: TOML syntax error{pos}: {}", one_line(e.message())))
     })?;
     for o in overrides {
         apply_override(&mut table, o)?;
     }
     match table.get("scene") {
-        Some(sc) => {
-            crate::scenes::check_table(sc).map_err(|m| Error::Config(format!("{origin}: {m}")))?
-        }
+        Some(sc) => crate::scenes::check_table(sc).map_err(|m| Error::Config(format!("{origin}: {m}")))?,
         None => {
             return config_err(format!(
                 "{origin}: missing [scene] table (with kind = \"channel\", ...)"
@@ -155,8 +150,7 @@ pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
         };
         Error::Config(format!("{origin}: {key}{inner}"))
     })?;
-    cfg.validate()
-        .map_err(|e| Error::Config(format!("{origin}: {e}")))?;
+    cfg.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
     Ok(cfg)
 }
 
@@ -187,12 +181,7 @@ pub fn apply_override(table: &mut toml::Table, spec: &str) -> Result<()> {
             .or_insert_with(|| toml::Value::Table(toml::Table::new()));
         cur = match entry {
             toml::Value::Table(t) => t,
-            _ => {
-                return config_err(format!(
-                    "--set {spec}: {} is not a table",
-                    parts[..=i].join(".")
-                ))
-            }
+            _ => return config_err(format!("--set {spec}: {} is not a table", parts[..=i].join("."))),
         };
     }
     cur.insert(parts[parts.len() - 1].to_string(), value);
@@ -236,9 +225,7 @@ impl Config {
             ("run.vtk_every", self.run.vtk_every),
         ] {
             if v == Some(0) {
-                return config_err(format!(
-                    "{name} = 0: must be at least 1 (leave it out to disable)"
-                ));
+                return config_err(format!("{name} = 0: must be at least 1 (leave it out to disable)"));
             }
         }
         Ok(())

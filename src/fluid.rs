@@ -4,7 +4,7 @@
 //!
 //! State convention: between steps a block holds *post-collision* PDFs. A step is
 //! exchange (fill ghost layers from the neighbours) → boundary (write bounce-back values into wall cells)
-//! → pull-stream + collide into the other field → swap. This is Algorithm 1's collide → communicate →
+//! → pull-stream + collide into the other field (the two fields alternate with the step's parity). This is Algorithm 1's collide → communicate →
 //! boundary → stream with the cycle cut after the collision.
 
 use crate::block::{ghost_ranges, source_ranges, Block};
@@ -13,13 +13,13 @@ use blockflow_kernels::d3q19::Q;
 use blockflow_kernels::sweep::{self, SweepStats};
 use blockflow_kernels::{Real, TrtParams};
 
-/// Packs the PDFs the receiver's ghost region at offset `off` needs from `sender` (directions `dirs`,
-/// interior layer next to the shared face/edge) into `buf`, row by row. Inside a process the same data
-/// could be copied directly; a packed message is what crosses processes (and an MPI backend would send).
-pub fn pack<T: Real>(sender: &Block<T>, off: [i32; 3], dirs: &[usize], buf: &mut Vec<T>) {
+/// Packs the PDFs the receiver's ghost region at offset `off` needs from field `p` of `sender`
+/// (directions `dirs`, interior layer next to the shared face/edge) into `buf`, row by row: the message
+/// that crosses processes (and that an MPI backend would send).
+pub fn pack<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], buf: &mut Vec<T>) {
     buf.clear();
     let l = &sender.layout;
-    let f = sender.src.data();
+    let f = sender.field(p).raw();
     let [rx, ry, rz] = source_ranges(l, off);
     let n = rx.end() - rx.start() + 1;
     for &q in dirs {
@@ -27,16 +27,17 @@ pub fn pack<T: Real>(sender: &Block<T>, off: [i32; 3], dirs: &[usize], buf: &mut
         for z in rz.clone() {
             for y in ry.clone() {
                 let i = base + l.idx(*rx.start(), y, z);
-                buf.extend_from_slice(&f[i..i + n]);
+                // SAFETY: interior cells of the sender's field; no task writes them concurrently (graph).
+                buf.extend_from_slice(unsafe { std::slice::from_raw_parts(f.add(i), n) });
             }
         }
     }
 }
 
-/// Unpacks a message from [`pack`] into the ghost region at offset `off` of `receiver`.
-pub fn unpack<T: Real>(receiver: &mut Block<T>, off: [i32; 3], dirs: &[usize], buf: &[T]) {
+/// Unpacks a message from [`pack`] into the ghost region at offset `off` of field `p` of `receiver`.
+pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], buf: &[T]) {
     let l = receiver.layout;
-    let f = receiver.src.data_mut();
+    let f = receiver.field(p).raw();
     let [rx, ry, rz] = ghost_ranges(&l, off);
     let n = rx.end() - rx.start() + 1;
     let mut k = 0;
@@ -45,7 +46,9 @@ pub fn unpack<T: Real>(receiver: &mut Block<T>, off: [i32; 3], dirs: &[usize], b
         for z in rz.clone() {
             for y in ry.clone() {
                 let i = base + l.idx(*rx.start(), y, z);
-                f[i..i + n].copy_from_slice(&buf[k..k + n]);
+                assert!(k + n <= buf.len(), "message shorter than the ghost region");
+                // SAFETY: ghost cells of the receiver, written only by this task (graph).
+                unsafe { std::ptr::copy_nonoverlapping(buf.as_ptr().add(k), f.add(i), n) };
                 k += n;
             }
         }
@@ -53,39 +56,66 @@ pub fn unpack<T: Real>(receiver: &mut Block<T>, off: [i32; 3], dirs: &[usize], b
     assert_eq!(k, buf.len(), "message size does not match the ghost region");
 }
 
-/// Boundary pass (eq. 6 with δ_q = 1/2): writes the bounce-back values of all links into the wall cells.
-pub fn boundary<T: Real>(b: &mut Block<T>) {
-    b.links.apply(&mut b.src);
-}
-
-/// Pull-stream (eq. 4) and collide (eq. 2) every fluid cell of the block into the other field, then swap
-/// the fields. Fused and split kernels give identical bits.
-pub fn stream_collide<T: Real>(
-    b: &mut Block<T>,
-    p: &TrtParams,
-    kernel: KernelChoice,
-) -> SweepStats {
-    let st = match kernel {
-        KernelChoice::Fused => sweep::stream_collide(&b.src, &mut b.dst, &b.segments, p),
-        KernelChoice::Split => {
-            sweep::stream(&b.src, &mut b.dst, &b.segments);
-            sweep::collide(&mut b.dst, &b.segments, p)
+/// Direct copy inside a process: the sender's interior layer straight into the receiver's ghost region
+/// (field `p` of both; the two may be the same block on a periodic axis: the regions are disjoint).
+pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize]) {
+    let l = receiver.layout;
+    let src = sender.field(p).raw();
+    let dst = receiver.field(p).raw();
+    let [sx, sy, sz] = source_ranges(&l, off);
+    let [gx, gy, gz] = ghost_ranges(&l, off);
+    let n = sx.end() - sx.start() + 1;
+    for &q in dirs {
+        let base = q * l.stride;
+        for (zs, zg) in sz.clone().zip(gz.clone()) {
+            for (ys, yg) in sy.clone().zip(gy.clone()) {
+                let i = base + l.idx(*sx.start(), ys, zs);
+                let j = base + l.idx(*gx.start(), yg, zg);
+                // SAFETY: interior source cells and ghost destination cells never overlap; the graph orders
+                // this copy after the sender's sweep and before anything else touches these elements.
+                unsafe { std::ptr::copy_nonoverlapping(src.add(i), dst.add(j), n) };
+            }
         }
-    };
-    std::mem::swap(&mut b.src, &mut b.dst);
-    st
+    }
 }
 
-/// δρ and u of the stored (post-collision) state of element `i` of a block.
-pub fn cell_moments<T: Real>(b: &Block<T>, i: usize, force: [f64; 3]) -> (f64, [f64; 3]) {
-    let f: [T; Q] = b.src.cell(i);
+/// Boundary pass (eq. 6 with δ_q = 1/2) on field `p`: writes the bounce-back values of all links into
+/// the wall cells.
+pub fn boundary<T: Real>(b: &Block<T>, p: usize) {
+    let f = b.field(p);
+    // SAFETY: writes wall elements and reads fluid elements of this block's field p; the graph runs no
+    // conflicting task on them concurrently.
+    unsafe { b.links.apply_raw(f.raw(), f.layout.len()) }
+}
+
+/// Pull-stream (eq. 4) and collide (eq. 2) every fluid cell of the block from field `p` into field
+/// `1 - p`. Fused and split kernels give identical bits.
+///
+/// # Safety
+/// No other task may access field `1 - p` of this block or write field `p` while this runs.
+pub unsafe fn stream_collide<T: Real>(b: &Block<T>, p: usize, params: &TrtParams, kernel: KernelChoice) -> SweepStats {
+    let src = b.field(p);
+    let dst = b.field_mut(1 - p);
+    match kernel {
+        KernelChoice::Fused => sweep::stream_collide(src, dst, &b.segments, params),
+        KernelChoice::Split => {
+            sweep::stream(src, dst, &b.segments);
+            sweep::collide(dst, &b.segments, params)
+        }
+    }
+}
+
+/// δρ and u of the stored (post-collision) state of element `i` of field `p`.
+pub fn cell_moments<T: Real>(b: &Block<T>, p: usize, i: usize, force: [f64; 3]) -> (f64, [f64; 3]) {
+    let f: [T; Q] = b.field(p).cell(i);
     blockflow_kernels::trt::moments(&f, force)
 }
 
-/// The first fluid cell (x fastest) whose density or velocity is non-finite or whose |u| exceeds `limit`:
-/// (global cell, δρ, u). Used only after a sweep reported trouble.
+/// The first fluid cell (x fastest) of field `p` whose density or velocity is non-finite or whose |u|
+/// exceeds `limit`: (global cell, δρ, u). Used only after a sweep reported trouble.
 pub fn find_bad_cell<T: Real>(
     b: &Block<T>,
+    p: usize,
     limit: f64,
     force: [f64; 3],
 ) -> Option<([usize; 3], f64, [f64; 3])> {
@@ -94,7 +124,7 @@ pub fn find_bad_cell<T: Real>(
         if found.is_some() {
             return;
         }
-        let (r, u) = cell_moments(b, i, force);
+        let (r, u) = cell_moments(b, p, i, force);
         let u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
         if !r.is_finite() || u2.is_nan() || u2 > limit * limit {
             found = Some((g, r, u));

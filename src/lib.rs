@@ -5,6 +5,7 @@
 //! [`geometry`], [`block`]), the per-block stages of a time step ([`fluid`]), the time loop ([`sim`]),
 //! scenes ([`scenes`]), output ([`io`]) and the command line ([`cli`]).
 
+pub mod balance;
 pub mod bench_kernel;
 pub mod block;
 pub mod cli;

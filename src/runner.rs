@@ -96,6 +96,7 @@ fn write_summary(dir: &Path, s: &Summary) -> Result<()> {
 
 fn vtk_step<T: Real>(vtk: &mut VtkSeries, sim: &Simulation<T>) -> Result<()> {
     let force = sim.params.force;
+    let p = sim.parity();
     let mut data = Vec::with_capacity(sim.blocks.len());
     for b in &sim.blocks {
         let [nx, ny, nz] = b.layout.size;
@@ -109,7 +110,7 @@ fn vtk_step<T: Real>(vtk: &mut VtkSeries, sim: &Simulation<T>) -> Result<()> {
                     let f = b.flags[i];
                     fl.push(f);
                     if f & crate::geometry::flags::FLUID != 0 {
-                        let (r, u) = crate::fluid::cell_moments(b, i, force);
+                        let (r, u) = crate::fluid::cell_moments(b, p, i, force);
                         rho.push(1.0 + r);
                         vel.push(u);
                     } else {
@@ -159,10 +160,8 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let bar = if opts.progress && std::io::stdout().is_terminal() {
         let b = ProgressBar::new(steps);
         b.set_style(
-            ProgressStyle::with_template(
-                "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} steps, ETA {eta}",
-            )
-            .expect("valid template"),
+            ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} steps, ETA {eta}")
+                .expect("valid template"),
         );
         b
     } else {

@@ -9,6 +9,7 @@ use crate::error::Instability;
 use crate::fluid;
 use crate::geometry::Geometry;
 use blockflow_kernels::d3q19::Q;
+use blockflow_kernels::sweep::SweepStats;
 use blockflow_kernels::trt::post_collision_equilibrium;
 use blockflow_kernels::{Real, TrtParams};
 use std::time::Instant;
@@ -66,7 +67,6 @@ pub struct Simulation<T: Real> {
     pub times: PartTimes,
     /// Work of the last step.
     pub work: StepWork,
-    buf: Vec<T>,
 }
 
 impl<T: Real> Simulation<T> {
@@ -90,7 +90,6 @@ impl<T: Real> Simulation<T> {
             kernel,
             times: PartTimes::default(),
             work: StepWork::default(),
-            buf: Vec::new(),
         }
     }
 
@@ -110,52 +109,62 @@ impl<T: Real> Simulation<T> {
         self.blocks.iter().map(|b| b.fluid_cells).sum()
     }
 
-    /// One time step over all blocks: exchange, boundary, stream + collide. Stops with the location of
+    /// Parity of the field holding the current state.
+    pub fn parity(&self) -> usize {
+        (self.step % 2) as usize
+    }
+
+    /// One time step over all blocks in a plain serial loop (the reference the task-graph pipeline is
+    /// tested and benchmarked against): exchange, boundary, stream + collide. Stops with the location of
     /// the first unstable cell (lowest block id) if the detector fires.
     pub fn step(&mut self) -> Result<(), Instability> {
+        let p = self.parity();
         let mut work = StepWork::default();
         let t0 = Instant::now();
-        for b in 0..self.blocks.len() {
-            for r in 0..self.blocks[b].recv.len() {
-                let (from, off) = (self.blocks[b].recv[r].from, self.blocks[b].recv[r].offset);
-                let dirs = std::mem::take(&mut self.blocks[b].recv[r].directions);
-                fluid::pack(&self.blocks[from], off, &dirs, &mut self.buf);
-                fluid::unpack(&mut self.blocks[b], off, &dirs, &self.buf);
-                self.blocks[b].recv[r].directions = dirs;
+        for b in &self.blocks {
+            for r in &b.recv {
+                fluid::copy_ghost(&self.blocks[r.from], b, p, r.offset, &r.directions);
                 work.messages += 1;
             }
         }
         let t1 = Instant::now();
         let mut tb = 0.0;
         let mut tl = 0.0;
-        let mut bad: Option<usize> = None;
-        let limit2 = self.velocity_limit * self.velocity_limit;
-        for b in self.blocks.iter_mut() {
+        let mut stats = Vec::with_capacity(self.blocks.len());
+        for b in &self.blocks {
             if b.fluid_cells == 0 {
+                stats.push(SweepStats::default());
                 continue;
             }
             let s0 = Instant::now();
             if !b.links.is_empty() {
-                fluid::boundary(b);
+                fluid::boundary(b, p);
                 work.boundary_passes += 1;
             }
             let s1 = Instant::now();
-            let st = fluid::stream_collide(b, &self.params, self.kernel);
+            // SAFETY: serial loop: nothing else touches the block.
+            stats.push(unsafe { fluid::stream_collide(b, p, &self.params, self.kernel) });
             work.sweeps += 1;
             tb += (s1 - s0).as_secs_f64();
             tl += s1.elapsed().as_secs_f64();
-            if (st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2) && bad.is_none() {
-                bad = Some(b.id);
-            }
         }
         self.times.exchange += (t1 - t0).as_secs_f64();
         self.times.boundary += tb;
         self.times.lbm += tl;
-        self.step += 1;
         self.work = work;
+        self.finish_step(&stats)
+    }
+
+    /// Advances the step counter and checks one step's sweep statistics (one per block, in block order).
+    pub fn finish_step(&mut self, stats: &[SweepStats]) -> Result<(), Instability> {
+        self.step += 1;
+        let limit2 = self.velocity_limit * self.velocity_limit;
+        let bad = stats
+            .iter()
+            .position(|st| st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2);
         if let Some(id) = bad {
             let b = &self.blocks[id];
-            let (cell, r, u) = fluid::find_bad_cell(b, self.velocity_limit, self.params.force)
+            let (cell, r, u) = fluid::find_bad_cell(b, self.parity(), self.velocity_limit, self.params.force)
                 .unwrap_or((b.origin, f64::NAN, [f64::NAN; 3]));
             return Err(Instability {
                 step: self.step,
@@ -173,9 +182,10 @@ impl<T: Real> Simulation<T> {
     /// Calls `visit(global cell, δρ, u)` for every fluid cell, blocks in id order.
     pub fn for_each_fluid(&self, mut visit: impl FnMut([usize; 3], f64, [f64; 3])) {
         let force = self.params.force;
+        let p = self.parity();
         for b in &self.blocks {
             b.for_each_fluid(|g, i| {
-                let (r, u) = fluid::cell_moments(b, i, force);
+                let (r, u) = fluid::cell_moments(b, p, i, force);
                 visit(g, r, u);
             });
         }
@@ -200,12 +210,14 @@ impl<T: Real> Simulation<T> {
     /// wrapping addition: identical for any block decomposition, process count or traversal order.
     pub fn checksum(&self) -> u64 {
         let n = self.domain.cells();
+        let p = self.parity();
         let mut sum = 0u64;
         for b in &self.blocks {
+            let f = b.field(p);
             b.for_each_fluid(|g, i| {
                 let mut h = mix(0x5bd1_e995 ^ (g[0] + n[0] * (g[1] + n[1] * g[2])) as u64);
                 for q in 0..Q {
-                    h = mix(h ^ b.src.get(q, i).bits());
+                    h = mix(h ^ f.get(q, i).bits());
                 }
                 sum = sum.wrapping_add(h);
             });

@@ -44,10 +44,7 @@ fn fails_cleanly(scene: &Path, args: &[&str], needles: &[&str]) {
     for n in needles {
         assert!(err.contains(n), "message lacks {n:?}: {err}");
     }
-    assert!(
-        !out.join("summary.json").exists(),
-        "a failed run left a summary.json"
-    );
+    assert!(!out.join("summary.json").exists(), "a failed run left a summary.json");
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
@@ -62,29 +59,13 @@ fn bad_values_name_their_key() {
     fails_cleanly(&ch, &["--set", "fluid.tau=0.5"], &["fluid.tau", "> 0.5"]);
     fails_cleanly(&ch, &["--set", "fluid.tau=0.3"], &["fluid.tau"]);
     fails_cleanly(&ch, &["--set", "domain.blocks=[0,1,1]"], &["domain.blocks"]);
-    fails_cleanly(
-        &ch,
-        &["--set", "domain.blocks=[-1,1,1]"],
-        &["domain.blocks"],
-    );
-    fails_cleanly(
-        &ch,
-        &["--set", "domain.blocks=[3,1,1]"],
-        &["domain.blocks", "divisor"],
-    );
+    fails_cleanly(&ch, &["--set", "domain.blocks=[-1,1,1]"], &["domain.blocks"]);
+    fails_cleanly(&ch, &["--set", "domain.blocks=[3,1,1]"], &["domain.blocks", "divisor"]);
     fails_cleanly(&ch, &["--set", "scene.resolution=0"], &["scene.resolution"]);
     fails_cleanly(&ch, &["--set", "fluid.taux=0.7"], &["fluid", "taux"]);
     fails_cleanly(&ch, &["--set", "scene.lid_velocity=0.1"], &["lid_velocity"]);
-    fails_cleanly(
-        &ch,
-        &["--set", "fluid.tau=fast"],
-        &["fluid.tau", "invalid type"],
-    );
-    fails_cleanly(
-        &ch,
-        &["--set", "fluid.precision=f16"],
-        &["fluid.precision", "f16"],
-    );
+    fails_cleanly(&ch, &["--set", "fluid.tau=fast"], &["fluid.tau", "invalid type"]);
+    fails_cleanly(&ch, &["--set", "fluid.precision=f16"], &["fluid.precision", "f16"]);
     fails_cleanly(
         &ch,
         &["--set", "domain.periodic=[false,false,false]"],
@@ -100,21 +81,13 @@ fn bad_files_name_the_file() {
     fails_cleanly(&missing, &[], &["nope.toml"]);
     let broken = write(&d, "broken.toml", "[scene\nkind = \"channel\"\n");
     fails_cleanly(&broken, &[], &["broken.toml", "line 1"]);
-    let unknown = write(
-        &d,
-        "unknown.toml",
-        "[scene]\nkind = \"channel\"\nresolutoin = 8\n",
-    );
+    let unknown = write(&d, "unknown.toml", "[scene]\nkind = \"channel\"\nresolutoin = 8\n");
     fails_cleanly(&unknown, &[], &["unknown.toml", "resolutoin"]);
     let kind = write(&d, "kind.toml", "[scene]\nkind = \"chanel\"\n");
     fails_cleanly(&kind, &[], &["kind.toml", "chanel"]);
     let noscene = write(&d, "noscene.toml", "[fluid]\ntau = 0.7\n");
     fails_cleanly(&noscene, &[], &["noscene.toml", "scene"]);
-    let types = write(
-        &d,
-        "types.toml",
-        "[scene]\nkind = \"channel\"\nresolution = \"big\"\n",
-    );
+    let types = write(&d, "types.toml", "[scene]\nkind = \"channel\"\nresolution = \"big\"\n");
     fails_cleanly(&types, &[], &["types.toml", "scene", "resolution"]);
     let garbage = d.join("garbage.toml");
     std::fs::write(&garbage, [0xffu8, 0xfe, 0x00, 0x13, 0x37]).unwrap();
@@ -194,11 +167,7 @@ fn stable_run_says_ok() {
 #[test]
 fn vtk_series_is_written() {
     let out = tmp("vtk");
-    let (code, err) = run(
-        &configs().join("couette.toml"),
-        &["--steps", "20", "--vtk", "10"],
-        &out,
-    );
+    let (code, err) = run(&configs().join("couette.toml"), &["--steps", "20", "--vtk", "10"], &out);
     assert_eq!(code, 0, "{err}");
     let pvd = std::fs::read_to_string(out.join("fluid.pvd")).unwrap();
     assert_eq!(pvd.matches("<DataSet").count(), 3, "steps 0, 10, 20: {pvd}");

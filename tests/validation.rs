@@ -29,11 +29,7 @@ fn taylor_green_converges_at_second_order() {
         .map(|n| {
             let r = format!("scene.resolution={n}");
             // the vortex is z-invariant: a shallow box gives the same error at a fraction of the cost
-            run(
-                "taylor_green.toml",
-                &[&r, "scene.depth=4", "domain.blocks=[1,1,1]"],
-            )
-            .observables["l2_error"]
+            run("taylor_green.toml", &[&r, "scene.depth=4", "domain.blocks=[1,1,1]"]).observables["l2_error"]
         })
         .collect();
     for w in errs.windows(2) {
@@ -101,11 +97,7 @@ fn one_block_and_two_by_three_by_four_blocks_are_bitwise_identical() {
 #[test]
 fn fused_and_split_kernels_are_bitwise_identical() {
     let a = checksum_after("channel.toml", &["domain.blocks=[1,2,1]"], 100);
-    let b = checksum_after(
-        "channel.toml",
-        &["domain.blocks=[1,2,1]", "fluid.kernel=split"],
-        100,
-    );
+    let b = checksum_after("channel.toml", &["domain.blocks=[1,2,1]", "fluid.kernel=split"], 100);
     assert_eq!(a.0, b.0);
 }
 
@@ -132,18 +124,10 @@ fn skip_rule_drops_fluid_and_boundary_work() {
 
 #[test]
 fn f32_matches_f64_to_its_rounding_level() {
-    let e64 = run(
-        "taylor_green.toml",
-        &["scene.resolution=32", "scene.depth=8"],
-    )
-    .observables["l2_error"];
+    let e64 = run("taylor_green.toml", &["scene.resolution=32", "scene.depth=8"]).observables["l2_error"];
     let e32 = run(
         "taylor_green.toml",
-        &[
-            "scene.resolution=32",
-            "scene.depth=8",
-            "fluid.precision=f32",
-        ],
+        &["scene.resolution=32", "scene.depth=8", "fluid.precision=f32"],
     )
     .observables["l2_error"];
     // Zero-centred f32 storage keeps rounding (~1e-7 relative per operation) far below the O(N^-2)

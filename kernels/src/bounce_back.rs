@@ -53,12 +53,24 @@ impl<T: Real> Links<T> {
 
     /// The boundary pass: writes every wall value the next pull stream will read.
     pub fn apply(&self, f: &mut PdfField<T>) {
-        let d = f.data_mut();
+        // SAFETY: exclusive access through &mut.
+        unsafe { self.apply_raw(f.raw(), f.layout.len()) }
+    }
+
+    /// The boundary pass through a raw pointer to a field of `len` elements.
+    ///
+    /// # Safety
+    /// `data` points to a field of this block's layout with `len` elements; during the call no other thread
+    /// reads the wall elements written or writes the fluid elements read (the task graph orders the
+    /// boundary pass against the ghost exchange and the sweeps).
+    pub unsafe fn apply_raw(&self, data: *mut T, len: usize) {
         for &[dst, src] in &self.noslip {
-            d[dst] = d[src];
+            debug_assert!(dst < len && src < len);
+            *data.add(dst) = *data.add(src);
         }
         for &([dst, src], t) in &self.moving {
-            d[dst] = d[src] + t;
+            debug_assert!(dst < len && src < len);
+            *data.add(dst) = *data.add(src) + t;
         }
     }
 }

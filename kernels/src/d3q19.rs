@@ -53,9 +53,7 @@ pub const W: [f64; Q] = [
 ];
 
 /// Index of the opposite direction: c_OPP[q] = -c_q.
-pub const OPP: [usize; Q] = [
-    0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15, 18, 17,
-];
+pub const OPP: [usize; Q] = [0, 2, 1, 4, 3, 6, 5, 8, 7, 10, 9, 12, 11, 14, 13, 16, 15, 18, 17];
 
 /// Speed of sound squared, c_s^2 = 1/3 (lattice units).
 pub const CS2: f64 = 1.0 / 3.0;

@@ -109,8 +109,7 @@ impl<T: Real> AlignedBuf<T> {
     pub fn zeroed(len: usize, skew_bytes: usize) -> Self {
         let offset = skew_bytes / T::BYTES;
         let alloc_len = (len + offset).max(1);
-        let layout =
-            AllocLayout::from_size_align(alloc_len * T::BYTES, PAGE).expect("block too large");
+        let layout = AllocLayout::from_size_align(alloc_len * T::BYTES, PAGE).expect("block too large");
         // SAFETY: layout has non-zero size; an all-zero bit pattern is 0.0 for f32 and f64.
         let ptr = unsafe { alloc_zeroed(layout) } as *mut T;
         if ptr.is_null() {
@@ -129,6 +128,14 @@ impl<T: Real> AlignedBuf<T> {
     pub fn as_slice(&self) -> &[T] {
         // SAFETY: ptr + offset .. + len lies inside the allocation and is initialised (zeroed).
         unsafe { std::slice::from_raw_parts(self.ptr.add(self.offset), self.len) }
+    }
+
+    /// Raw pointer to the first element, for tasks that write disjoint cell regions of one field
+    /// concurrently (ghost layers, wall cells) while others read other regions.
+    #[inline(always)]
+    pub fn as_ptr(&self) -> *mut T {
+        // SAFETY: offset lies inside the allocation.
+        unsafe { self.ptr.add(self.offset) }
     }
 
     /// The elements as a mutable slice.
@@ -174,6 +181,13 @@ impl<T: Real> PdfField<T> {
     #[inline(always)]
     pub fn data_mut(&mut self) -> &mut [T] {
         self.buf.as_mut_slice()
+    }
+
+    /// Raw pointer to element 0 of direction 0 (`ptr.add(q * stride + idx)` addresses a value). Writing
+    /// through it is allowed while no slice of this field is alive that covers the written elements.
+    #[inline(always)]
+    pub fn raw(&self) -> *mut T {
+        self.buf.as_ptr()
     }
 
     /// Value of direction q at element index i.

@@ -89,21 +89,11 @@ where
         let mut i = s.start;
         let end = s.start + s.len;
         while i + V::LANES <= end {
-            trt_cell::<V, FORCE, FMA>(
-                |q| V::load(sp[q].add(i)),
-                |q, v| v.store(dp[q].add(i)),
-                &k,
-                &mut st,
-            );
+            trt_cell::<V, FORCE, FMA>(|q| V::load(sp[q].add(i)), |q, v| v.store(dp[q].add(i)), &k, &mut st);
             i += V::LANES;
         }
         while i < end {
-            trt_cell::<V::S, FORCE, FMA>(
-                |q| *sp[q].add(i),
-                |q, v| *dp[q].add(i) = v,
-                &k1,
-                &mut st1,
-            );
+            trt_cell::<V::S, FORCE, FMA>(|q| *sp[q].add(i), |q, v| *dp[q].add(i) = v, &k1, &mut st1);
             i += 1;
         }
     }
@@ -134,21 +124,11 @@ where
         let mut i = s.start;
         let end = s.start + s.len;
         while i + V::LANES <= end {
-            trt_cell::<V, FORCE, FMA>(
-                |q| V::load(ptr[q].add(i)),
-                |q, v| v.store(ptr[q].add(i)),
-                &k,
-                &mut st,
-            );
+            trt_cell::<V, FORCE, FMA>(|q| V::load(ptr[q].add(i)), |q, v| v.store(ptr[q].add(i)), &k, &mut st);
             i += V::LANES;
         }
         while i < end {
-            trt_cell::<V::S, FORCE, FMA>(
-                |q| *ptr[q].add(i),
-                |q, v| *ptr[q].add(i) = v,
-                &k1,
-                &mut st1,
-            );
+            trt_cell::<V::S, FORCE, FMA>(|q| *ptr[q].add(i), |q, v| *ptr[q].add(i) = v, &k1, &mut st1);
             i += 1;
         }
     }
@@ -158,13 +138,7 @@ where
 /// # Safety
 /// As for [`fused_impl`].
 #[inline(always)]
-unsafe fn stream_impl<T: Real>(
-    src: *const T,
-    dst: *mut T,
-    stride: usize,
-    offs: &[isize; Q],
-    segs: &[Segment],
-) {
+unsafe fn stream_impl<T: Real>(src: *const T, dst: *mut T, stride: usize, offs: &[isize; Q], segs: &[Segment]) {
     for (q, &off) in offs.iter().enumerate() {
         let sp = src.add(q * stride).offset(-off);
         let dp = dst.add(q * stride);
@@ -324,9 +298,7 @@ mod tests {
         let mut f = PdfField::<T>::new(l, 0);
         let mut s = seed;
         for v in f.data_mut().iter_mut() {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
             *v = T::from_f64(((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.01);
         }
         f
@@ -377,10 +349,7 @@ mod tests {
         let whole = full_segments(&l);
         let mut pieces = Vec::new();
         for s in &whole {
-            pieces.push(Segment {
-                start: s.start,
-                len: 3,
-            });
+            pieces.push(Segment { start: s.start, len: 3 });
             pieces.push(Segment {
                 start: s.start + 3,
                 len: s.len - 3,
@@ -390,11 +359,7 @@ mod tests {
         let mut b = PdfField::<f64>::new(l, 0);
         stream_collide(&src, &mut a, &whole, &p);
         stream_collide(&src, &mut b, &pieces, &p);
-        assert!(a
-            .data()
-            .iter()
-            .zip(b.data())
-            .all(|(x, y)| x.to_bits() == y.to_bits()));
+        assert!(a.data().iter().zip(b.data()).all(|(x, y)| x.to_bits() == y.to_bits()));
     }
 
     #[test]

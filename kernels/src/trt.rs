@@ -97,11 +97,7 @@ impl TrtParams {
             g: std::array::from_fn(|k| t(9.0 * kp * pw(k) * pair_cf(k))),
             h: std::array::from_fn(|k| t(3.0 * km * pw(k) * pair_cf(k))),
             f: [t(self.force[0]), t(self.force[1]), t(self.force[2])],
-            half_f: [
-                t(0.5 * self.force[0]),
-                t(0.5 * self.force[1]),
-                t(0.5 * self.force[2]),
-            ],
+            half_f: [t(0.5 * self.force[0]), t(0.5 * self.force[1]), t(0.5 * self.force[2])],
         }
     }
 }
@@ -196,9 +192,7 @@ pub fn trt_cell<V: Vector, const FORCE: bool, const FMA: bool>(
     let (f15, f16, f17, f18) = (load(15), load(16), load(17), load(18));
     let (s1516, d1516, s1718, d1718) = (f15 + f16, f15 - f16, f17 + f18, f17 - f18);
     let (f1, f2, f3, f4, f5, f6) = (load(1), load(2), load(3), load(4), load(5), load(6));
-    let rho = (load(0) + (f1 + f2) + (f3 + f4) + (f5 + f6))
-        + ((s78 + s910) + (s1112 + s1314))
-        + (s1516 + s1718);
+    let rho = (load(0) + (f1 + f2) + (f3 + f4) + (f5 + f6)) + ((s78 + s910) + (s1112 + s1314)) + (s1516 + s1718);
     let mut ux = (f1 - f2) + (d78 + d910) + (d1112 + d1314);
     let mut uy = (f3 - f4) + (d78 - d910) + (d1516 + d1718);
     let mut uz = (f5 - f6) + (d1112 - d1314) + (d1516 - d1718);
@@ -292,11 +286,7 @@ pub fn moments<T: Real>(f: &[T; Q], force: [f64; 3]) -> (f64, [f64; 3]) {
     }
     (
         rho,
-        [
-            j[0] - 0.5 * force[0],
-            j[1] - 0.5 * force[1],
-            j[2] - 0.5 * force[2],
-        ],
+        [j[0] - 0.5 * force[0], j[1] - 0.5 * force[1], j[2] - 0.5 * force[2]],
     )
 }
 
@@ -352,10 +342,7 @@ mod tests {
         let (r1, j1) = moments(&out, [0.0; 3]);
         assert!((r0 - r1).abs() < 1e-17);
         for a in 0..3 {
-            assert!(
-                (j1[a] - j0[a] - p.force[a]).abs() < 1e-17,
-                "momentum gains exactly F"
-            );
+            assert!((j1[a] - j0[a] - p.force[a]).abs() < 1e-17, "momentum gains exactly F");
         }
         // the initial post-collision equilibrium reports back the velocity it was built with
         let u = [0.02, 0.01, -0.03];

@@ -95,7 +95,10 @@ impl GraphBuilder {
         }
         if seen != n {
             let t = deg.iter().position(|&d| d > 0).unwrap_or(0);
-            return Err(format!("the task graph has a cycle through task {t} ({:?})", self.specs[t]));
+            return Err(format!(
+                "the task graph has a cycle through task {t} ({:?})",
+                self.specs[t]
+            ));
         }
         let processes = self.specs.iter().map(|s| s.owner + 1).max().unwrap_or(0) as usize;
         Ok(TaskGraph {

@@ -58,9 +58,7 @@ impl VtkSeries {
     /// if a piece's array lengths do not match its size, block ids repeat, or `time` is not finite.
     pub fn write_step(&mut self, step: u64, time: f64, pieces: &[VtkPiece]) -> io::Result<()> {
         if !time.is_finite() {
-            return Err(invalid(format!(
-                "VTK step {step}: time {time} is not finite"
-            )));
+            return Err(invalid(format!("VTK step {step}: time {time} is not finite")));
         }
         for (i, p) in pieces.iter().enumerate() {
             check_piece(p)?;
@@ -147,10 +145,7 @@ fn check_piece(p: &VtkPiece) -> io::Result<()> {
 }
 
 /// Writes `path` through `path.tmp`, renaming into place only once everything was written.
-fn write_atomic(
-    path: &Path,
-    body: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>,
-) -> io::Result<()> {
+fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>) -> io::Result<()> {
     let mut tmp = path.as_os_str().to_owned();
     tmp.push(".tmp");
     let tmp = PathBuf::from(tmp);
@@ -220,10 +215,7 @@ mod tests {
             .duration_since(std::time::UNIX_EPOCH)
             .unwrap()
             .subsec_nanos();
-        let dir = std::env::temp_dir().join(format!(
-            "blockflow_vtk_{name}_{}_{nanos}",
-            std::process::id()
-        ));
+        let dir = std::env::temp_dir().join(format!("blockflow_vtk_{name}_{}_{nanos}", std::process::id()));
         let _ = fs::remove_dir_all(&dir);
         dir
     }
@@ -261,10 +253,7 @@ mod tests {
     fn check_vti(path: &Path, n: usize) -> f32 {
         let bytes = fs::read(path).unwrap();
         let marker = b"<AppendedData encoding=\"raw\">";
-        let pos = bytes
-            .windows(marker.len())
-            .position(|w| w == marker)
-            .unwrap();
+        let pos = bytes.windows(marker.len()).position(|w| w == marker).unwrap();
         let header = std::str::from_utf8(&bytes[..pos]).unwrap();
         let data_start = pos + bytes[pos..].iter().position(|&b| b == b'_').unwrap() + 1;
         let offsets: Vec<usize> = header
@@ -288,40 +277,23 @@ mod tests {
         let mut series = VtkSeries::new(&dir).unwrap();
         assert!(series.is_empty() && dir.join("vtk").is_dir());
         let (a, b) = (data(4 * 3 * 2, 0.0), data(2 * 3 * 2, 0.5));
-        let pieces = [
-            piece(0, [0, 0, 0], [4, 3, 2], &a),
-            piece(7, [4, 0, 0], [2, 3, 2], &b),
-        ];
+        let pieces = [piece(0, [0, 0, 0], [4, 3, 2], &a), piece(7, [4, 0, 0], [2, 3, 2], &b)];
         series.write_step(0, 0.0, &pieces).unwrap();
         series.write_step(100, 2.5, &pieces).unwrap();
         assert_eq!(series.len(), 2);
 
         let vti = dir.join("vtk/step_00000100/block_00007.vti");
-        assert_eq!(
-            check_vti(&dir.join("vtk/step_00000000/block_00000.vti"), 24),
-            1.0
-        );
+        assert_eq!(check_vti(&dir.join("vtk/step_00000000/block_00000.vti"), 24), 1.0);
         assert_eq!(check_vti(&vti, 12), 1.5);
         let text = String::from_utf8_lossy(&fs::read(&vti).unwrap()).into_owned();
-        assert!(
-            text.contains("WholeExtent=\"4 6 0 3 0 2\"")
-                && text.contains("<Piece Extent=\"4 6 0 3 0 2\">")
-        );
+        assert!(text.contains("WholeExtent=\"4 6 0 3 0 2\"") && text.contains("<Piece Extent=\"4 6 0 3 0 2\">"));
 
         let vtm = fs::read_to_string(dir.join("vtk/step_00000100.vtm")).unwrap();
-        assert!(vtm.contains(
-            "<DataSet index=\"0\" name=\"block_0\" file=\"step_00000100/block_00000.vti\"/>"
-        ));
-        assert!(vtm.contains(
-            "<DataSet index=\"1\" name=\"block_7\" file=\"step_00000100/block_00007.vti\"/>"
-        ));
+        assert!(vtm.contains("<DataSet index=\"0\" name=\"block_0\" file=\"step_00000100/block_00000.vti\"/>"));
+        assert!(vtm.contains("<DataSet index=\"1\" name=\"block_7\" file=\"step_00000100/block_00007.vti\"/>"));
         let pvd = fs::read_to_string(dir.join("fluid.pvd")).unwrap();
-        assert!(
-            pvd.contains("timestep=\"0.0\" group=\"\" part=\"0\" file=\"vtk/step_00000000.vtm\"")
-        );
-        assert!(
-            pvd.contains("timestep=\"2.5\" group=\"\" part=\"0\" file=\"vtk/step_00000100.vtm\"")
-        );
+        assert!(pvd.contains("timestep=\"0.0\" group=\"\" part=\"0\" file=\"vtk/step_00000000.vtm\""));
+        assert!(pvd.contains("timestep=\"2.5\" group=\"\" part=\"0\" file=\"vtk/step_00000100.vtm\""));
         let leftovers = fs::read_dir(dir.join("vtk")).unwrap().flatten();
         assert!(leftovers
             .into_iter()

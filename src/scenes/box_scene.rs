@@ -61,12 +61,7 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         }
         match Plane::through(p.point, p.normal, p.velocity) {
             Some(pl) => geometry.planes.push(pl),
-            None => {
-                return config_err(format!(
-                    "scene.planes[{i}].normal = {:?}: must not be zero",
-                    p.normal
-                ))
-            }
+            None => return config_err(format!("scene.planes[{i}].normal = {:?}: must not be zero", p.normal)),
         }
     }
     for a in 0..3 {

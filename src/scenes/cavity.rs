@@ -57,14 +57,11 @@ pub(super) fn build(s: &CavityConfig, cfg: &Config) -> Result<Scene> {
         s.lid_velocity > 0.0 && s.lid_velocity < 0.4,
         "must lie in (0, 0.4)",
     )?;
-    check(
-        "turnovers",
-        s.turnovers,
-        s.turnovers > 0.0,
-        "must be positive",
-    )?;
+    check("turnovers", s.turnovers, s.turnovers > 0.0, "must be positive")?;
     if cfg.fluid.tau.is_some() {
-        return config_err("fluid.tau: the cavity derives τ from scene.reynolds and scene.lid_velocity; remove fluid.tau");
+        return config_err(
+            "fluid.tau: the cavity derives τ from scene.reynolds and scene.lid_velocity; remove fluid.tau",
+        );
     }
     let n = s.resolution;
     let u = s.lid_velocity;

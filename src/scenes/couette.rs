@@ -45,18 +45,8 @@ pub(super) fn build(s: &CouetteConfig, cfg: &Config) -> Result<Scene> {
         "must be at least 2 cells",
     )?;
     check("reynolds", s.reynolds, s.reynolds > 0.0, "must be positive")?;
-    check(
-        "length",
-        s.length as f64,
-        s.length >= 1,
-        "must be at least 1 cell",
-    )?;
-    check(
-        "width",
-        s.width as f64,
-        s.width >= 1,
-        "must be at least 1 cell",
-    )?;
+    check("length", s.length as f64, s.length >= 1, "must be at least 1 cell")?;
+    check("width", s.width as f64, s.width >= 1, "must be at least 1 cell")?;
     let h = s.resolution as f64;
     let tau = tau_or(cfg, 0.8);
     let nu = (tau - 0.5) / 3.0;
@@ -79,12 +69,7 @@ pub(super) fn build(s: &CouetteConfig, cfg: &Config) -> Result<Scene> {
         },
         steps: steady_steps(s.resolution, nu),
         init: Box::new(|_| (0.0, [0.0; 3])),
-        observe: Box::new(move |v| {
-            BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])
-        }),
-        description: format!(
-            "Couette gap H = {h}, Re = {}, U = {u_wall:.4}, tau = {tau}",
-            s.reynolds
-        ),
+        observe: Box::new(move |v| BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])),
+        description: format!("Couette gap H = {h}, Re = {}, U = {u_wall:.4}, tau = {tau}", s.reynolds),
     })
 }

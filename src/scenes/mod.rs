@@ -79,22 +79,15 @@ pub struct Scene {
 /// (`scene.resolution: invalid type ...`); serde's tagged enums would only say `scene`.
 pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
     fn de<T: serde::de::DeserializeOwned>(v: toml::Value) -> std::result::Result<(), String> {
-        serde_path_to_error::deserialize::<_, T>(v)
-            .map(|_| ())
-            .map_err(|e| {
-                let p = e.path().to_string();
-                let inner = e
-                    .inner()
-                    .to_string()
-                    .split_whitespace()
-                    .collect::<Vec<_>>()
-                    .join(" ");
-                if p == "." {
-                    format!("scene: {inner}")
-                } else {
-                    format!("scene.{p}: {inner}")
-                }
-            })
+        serde_path_to_error::deserialize::<_, T>(v).map(|_| ()).map_err(|e| {
+            let p = e.path().to_string();
+            let inner = e.inner().to_string().split_whitespace().collect::<Vec<_>>().join(" ");
+            if p == "." {
+                format!("scene: {inner}")
+            } else {
+                format!("scene.{p}: {inner}")
+            }
+        })
     }
     let toml::Value::Table(t) = scene else {
         return Err("scene: must be a table ([scene] with kind = ...)".into());
@@ -104,9 +97,7 @@ pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
         Some(toml::Value::String(k)) => k,
         Some(other) => return Err(format!("scene.kind = {other}: must be a string")),
         None => {
-            return Err(
-                "scene.kind: missing; one of channel, couette, taylor_green, cavity, box".into(),
-            );
+            return Err("scene.kind: missing; one of channel, couette, taylor_green, cavity, box".into());
         }
     };
     let v = toml::Value::Table(t);

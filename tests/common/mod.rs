@@ -9,9 +9,7 @@ use std::path::PathBuf;
 
 /// Parses a scene file from configs/ with overrides.
 pub fn cfg(file: &str, sets: &[&str]) -> Config {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("configs")
-        .join(file);
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs").join(file);
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     config::load(&path, &sets).expect("valid scene")
 }
