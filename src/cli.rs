@@ -32,6 +32,36 @@ pub enum Command {
         /// Write VTK output (fluid.pvd) every N steps.
         #[arg(long, value_name = "EVERY")]
         vtk: Option<u64>,
+        /// Virtual processes P (processes.count).
+        #[arg(long)]
+        processes: Option<usize>,
+        /// Threads per process T (processes.threads_per_process).
+        #[arg(long)]
+        threads_per_process: Option<usize>,
+        /// Pinning: compact, scatter, none or a core list such as 0,1 (processes.pin).
+        #[arg(long)]
+        pin: Option<String>,
+        /// Assignment strategy: none, hilbert, morton (balance.strategy).
+        #[arg(long)]
+        balance: Option<String>,
+        /// Steps per balancing / measurement interval (balance.interval).
+        #[arg(long)]
+        interval: Option<u64>,
+        /// Write a Chrome trace (Perfetto, chrome://tracing) of every task to FILE.
+        #[arg(long, value_name = "FILE")]
+        trace: Option<PathBuf>,
+    },
+    /// Print the machine's topology and the thread placement the options would get.
+    Topology {
+        /// Virtual processes P.
+        #[arg(long, default_value_t = 1)]
+        processes: usize,
+        /// Threads per process T.
+        #[arg(long, default_value_t = 1)]
+        threads_per_process: usize,
+        /// Pinning: compact, scatter, none or a core list.
+        #[arg(long, default_value = "compact")]
+        pin: String,
     },
     /// Benchmarks that print tables.
     Bench {
@@ -63,13 +93,35 @@ pub fn execute(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run {
             scene,
-            set,
+            mut set,
             out,
             steps,
             vtk,
+            processes,
+            threads_per_process,
+            pin,
+            balance,
+            interval,
+            trace,
         } => {
             if vtk == Some(0) {
                 return Err(Error::Config("--vtk 0: must be at least 1".into()));
+            }
+            // Command-line options are overrides of the stable keys, checked like the file's values.
+            if let Some(p) = processes {
+                set.push(format!("processes.count={p}"));
+            }
+            if let Some(t) = threads_per_process {
+                set.push(format!("processes.threads_per_process={t}"));
+            }
+            if let Some(p) = pin {
+                set.push(format!("processes.pin=\"{}\"", p.replace('"', "")));
+            }
+            if let Some(b) = balance {
+                set.push(format!("balance.strategy=\"{}\"", b.replace('"', "")));
+            }
+            if let Some(i) = interval {
+                set.push(format!("balance.interval={i}"));
             }
             let cfg = crate::config::load(&scene, &set)?;
             let opts = crate::runner::RunOptions {
@@ -78,17 +130,49 @@ pub fn execute(cli: Cli) -> Result<()> {
                 vtk_every: vtk,
                 progress: true,
                 scene_path: Some(scene.clone()),
+                trace,
             };
             let dir = crate::runner::output_dir(&cfg, &opts);
             let s = crate::runner::run(&cfg, &opts)?;
-            println!(
-                "{}: {} steps, {} fluid cells in {} blocks, {:.2} s, {:.1} MLUPS ({})",
-                s.scene, s.steps, s.fluid_cells, s.blocks, s.wall_seconds, s.mlups, s.precision
+            let mut text = format!(
+                "{}: {} steps, {} fluid cells in {} blocks, {} x {} threads, {:.2} s, {:.1} MLUPS ({})\n",
+                s.scene,
+                s.steps,
+                s.fluid_cells,
+                s.blocks,
+                s.processes,
+                s.threads_per_process,
+                s.wall_seconds,
+                s.mlups,
+                s.precision
             );
             for (k, v) in &s.observables {
-                println!("  {k} = {v:.6e}");
+                text += &format!("  {k} = {v:.6e}\n");
             }
-            println!("  checksum {}; results in {}", s.checksum.fluid, dir.display());
+            text += &format!("  checksum {}; results in {}\n", s.checksum.fluid, dir.display());
+            print_out(&text);
+            Ok(())
+        }
+        Command::Topology {
+            processes,
+            threads_per_process,
+            pin,
+        } => {
+            use blockflow_scheduler::topology::{describe_placement, placement, PinPolicy, Topology};
+            if processes == 0 || threads_per_process == 0 {
+                return Err(Error::Config(
+                    "--processes and --threads-per-process must be at least 1".into(),
+                ));
+            }
+            let policy: PinPolicy = pin.parse().map_err(|e| Error::Config(format!("--pin {pin}: {e}")))?;
+            let topo = Topology::detect();
+            let cores = placement(&topo, processes, threads_per_process, &policy)
+                .map_err(|e| Error::Config(format!("--pin {pin}: {e}")))?;
+            print_out(&format!(
+                "{}\n\n{}\n",
+                topo.describe(),
+                describe_placement(processes, threads_per_process, &cores)
+            ));
             Ok(())
         }
         Command::Bench {

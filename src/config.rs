@@ -18,6 +18,12 @@ pub struct Config {
     /// Run control (`[run]`).
     #[serde(default)]
     pub run: RunConfig,
+    /// Virtual processes and threads (`[processes]`).
+    #[serde(default)]
+    pub processes: ProcessesConfig,
+    /// Block assignment and balancing (`[balance]`).
+    #[serde(default)]
+    pub balance: BalanceConfig,
     /// The scene and its physical parameters (`[scene]`, chosen by `kind`).
     pub scene: crate::scenes::SceneConfig,
 }
@@ -103,10 +109,116 @@ pub struct RunConfig {
     pub steps: Option<u64>,
     /// Output folder; absent: `out/<scene file name>`.
     pub out: Option<String>,
-    /// Write a row of `series.csv` every this many steps (default: about 200 rows per run).
+    /// Write a row of `series.csv` every this many steps (default: about 100 rows per run, at least every 10 steps).
     pub series_every: Option<u64>,
     /// Write VTK output every this many steps (default: never).
     pub vtk_every: Option<u64>,
+}
+
+/// `processes.pin`: a policy name or an explicit core list.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(untagged)]
+pub enum PinConfig {
+    /// `"compact"`, `"scatter"` or `"none"` (or a list written as a string, `"0,2,4-7"`).
+    Name(String),
+    /// Explicit cores, one per worker thread in process-major order.
+    Cores(Vec<usize>),
+}
+
+impl Default for PinConfig {
+    fn default() -> Self {
+        PinConfig::Name("none".into())
+    }
+}
+
+/// `processes.steal`: where idle threads may take ready tasks from.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum StealConfig {
+    /// Only inside their own virtual process (MPI-faithful; default).
+    #[default]
+    Process,
+    /// From any process: a shared-memory experiment MPI cannot run.
+    Global,
+}
+
+/// `[processes]`: virtual processes (thread groups standing in for MPI ranks).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProcessesConfig {
+    /// Number of virtual processes P.
+    #[serde(default = "one")]
+    pub count: usize,
+    /// Threads per process T.
+    #[serde(default = "one")]
+    pub threads_per_process: usize,
+    /// Pinning policy.
+    #[serde(default)]
+    pub pin: PinConfig,
+    /// Stealing policy.
+    #[serde(default)]
+    pub steal: StealConfig,
+    /// Steps per task-graph run: consecutive steps overlap inside a run (no barrier between them); the
+    /// instability detector and the time series look at the state between runs.
+    #[serde(default = "d_graph_steps")]
+    pub steps_per_graph: usize,
+}
+
+fn one() -> usize {
+    1
+}
+fn d_graph_steps() -> usize {
+    4
+}
+
+impl Default for ProcessesConfig {
+    fn default() -> Self {
+        ProcessesConfig {
+            count: 1,
+            threads_per_process: 1,
+            pin: PinConfig::default(),
+            steal: StealConfig::Process,
+            steps_per_graph: d_graph_steps(),
+        }
+    }
+}
+
+/// `balance.strategy`: how blocks are assigned to processes.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Strategy {
+    /// Static Hilbert split by fluid-cell count at the start (the paper's baseline).
+    #[default]
+    None,
+    /// 3D Hilbert curve order, greedy prefix split.
+    Hilbert,
+    /// Morton curve order, greedy prefix split.
+    Morton,
+}
+
+/// `[balance]`: assignment and balancing.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct BalanceConfig {
+    /// Strategy.
+    #[serde(default)]
+    pub strategy: Strategy,
+    /// Steps per balancing / measurement interval.
+    #[serde(default = "d_interval")]
+    pub interval: u64,
+}
+
+fn d_interval() -> u64 {
+    100
+}
+
+impl Default for BalanceConfig {
+    fn default() -> Self {
+        BalanceConfig {
+            strategy: Strategy::None,
+            interval: d_interval(),
+        }
+    }
 }
 
 /// Reads a scene file, applies `--set` overrides and validates the generic keys.

@@ -15,6 +15,7 @@ pub mod error;
 pub mod fluid;
 pub mod geometry;
 pub mod io;
+pub mod pipeline;
 pub mod runner;
 pub mod scenes;
 pub mod sim;

@@ -49,6 +49,39 @@ pub struct WorkSummary {
     pub blocks_without_boundary: usize,
 }
 
+/// Assignment and imbalance (`balance.*`), per DESIGN.md.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct BalanceSummary {
+    /// Strategy name.
+    pub strategy: String,
+    /// Steps per interval.
+    pub interval: u64,
+    /// Load imbalance eq. (18) per interval (workload = CPU time of lbm + boundary tasks per owner).
+    pub imbalance: Vec<f64>,
+    /// Median of `imbalance`.
+    pub imbalance_median: f64,
+    /// Modeled time to solution: every step graph replayed with its measured task durations on P×T
+    /// dedicated cores (meaningful even when P×T exceeds this machine's cores).
+    pub modeled_seconds: f64,
+    /// Time spent rebalancing (no dynamic balancing yet: 0).
+    pub balance_seconds: f64,
+    /// Mean edge cut eq. (17) of the assignment (face b², edge b, corner 1 between blocks of different
+    /// processes; non-cubic blocks use the shared face area and edge length).
+    pub edge_cut_mean: f64,
+    /// Blocks migrated by rebalancing.
+    pub migrated_blocks: u64,
+    /// Blocks per process.
+    pub blocks_per_process: Vec<usize>,
+    /// Bytes sent in cross-process messages.
+    pub message_bytes: u64,
+    /// Cross-process messages.
+    pub remote_messages: u64,
+    /// Ghost regions copied directly inside a process.
+    pub local_copies: u64,
+    /// Tasks per step (one-step graph).
+    pub tasks_per_step: usize,
+}
+
 /// The whole summary.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Summary {
@@ -97,4 +130,9 @@ pub struct Summary {
     pub observables: BTreeMap<String, f64>,
     /// Skip-rule bookkeeping.
     pub work: WorkSummary,
+    /// Pinned core of each worker thread (absent: not pinned).
+    pub cores: Vec<Option<usize>>,
+    /// Assignment and imbalance.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub balance: Option<BalanceSummary>,
 }

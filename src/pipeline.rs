@@ -1,0 +1,466 @@
+//! The fluid time step as a task graph run by the scheduler's virtual processes (DESIGN.md, "One time step
+//! as a task graph"). The graph covers `k` consecutive steps, is compiled once per block layout and
+//! assignment, and re-armed for every run; inside a run, a block may start step t+1 while a distant block
+//! still works on step t.
+//!
+//! Tasks per block `b` with fluid and step `s` (parity `p = s % 2`: the state is read from field `p`, the
+//! new state written to field `1 - p`):
+//!
+//! | task | reads | writes |
+//! |---|---|---|
+//! | `send(b,s)` (only if a receiver lives in another process) | b.field[p] interior layers | message slots |
+//! | `comm(b,s)` | senders' field[p] layers (same process) or slots (other process) | b.field[p] ghost cells |
+//! | `boundary(b,s)` (only with links) | b.field[p] fluid cells | b.field[p] wall cells |
+//! | `sweep(b,s)` | b.field[p] | b.field[1-p] fluid cells |
+//!
+//! Edges (every conflicting pair of accesses is ordered):
+//! - chain `comm(b,s) → boundary(b,s) → sweep(b,s) → first(b,s+1)`, and `sweep(b,s-1) → send(b,s)`;
+//! - local sender n of b: `sweep(n,s-1) → comm(b,s)` (read after write) and `comm(b,s) → compute(n,s)`,
+//!   the first of boundary/sweep of n (n's boundary writes wall cells in the layer b reads; n's next
+//!   sweep into field p comes after it on n's chain);
+//! - remote sender n: `send(n,s) → comm(b,s)`, `comm(b,s) → send(n,s+1)` (slot reuse);
+//! - `send(n,s) → compute(n,s)` (n's boundary writes wall cells in the layers being packed).
+//!
+//! Every block's numbers depend only on its data, never on which thread runs it; the sweep statistics
+//! are reduced in block order after the run, so results are bitwise identical for any P, T, pinning,
+//! stealing and assignment.
+
+use crate::block::Block;
+use crate::config::KernelChoice;
+use crate::error::Instability;
+use crate::fluid;
+use crate::sim::Simulation;
+use blockflow_kernels::sweep::SweepStats;
+use blockflow_kernels::Real;
+use blockflow_scheduler::executor::Executor;
+use blockflow_scheduler::replay::{load_imbalance, replay_makespan};
+use blockflow_scheduler::trace::TraceWriter;
+use blockflow_scheduler::{GraphBuilder, TaskGraph, TaskId, TaskRecord, TaskSpec};
+use std::collections::HashMap;
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Part labels of the fluid tasks (index = `TaskSpec::part`).
+pub const PARTS: [&str; 3] = ["lbm", "boundary", "exchange"];
+const PART_LBM: u8 = 0;
+const PART_BOUNDARY: u8 = 1;
+const PART_EXCHANGE: u8 = 2;
+
+const KIND_SEND: u32 = 0;
+const KIND_COMM: u32 = 1;
+const KIND_BOUNDARY: u32 = 2;
+const KIND_SWEEP: u32 = 3;
+
+fn payload(k: usize, kind: u32) -> u32 {
+    ((k as u32) << 2) | kind
+}
+
+/// A remote message: which receiver and ghost region a slot feeds.
+#[derive(Clone, Copy, Debug)]
+struct Outgoing {
+    receiver: usize,
+    recv: usize,
+    slot: usize,
+}
+
+/// Measurements of one interval of steps (`balance.interval`).
+#[derive(Clone, Debug, Default)]
+pub struct IntervalStats {
+    /// First step of the interval (exclusive start: steps `start + 1 ..= end`).
+    pub start: u64,
+    /// Last step.
+    pub end: u64,
+    /// Wall-clock seconds of the graph runs.
+    pub wall_seconds: f64,
+    /// Modeled seconds: the recorded graphs replayed with measured CPU durations on P×T dedicated cores.
+    pub modeled_seconds: f64,
+    /// Workload (CPU seconds of lbm + boundary tasks, as in eq. 16 without communication) per owner process.
+    pub process_load: Vec<f64>,
+    /// Load imbalance eq. (18) of `process_load`.
+    pub imbalance: f64,
+    /// Bytes packed into cross-process messages.
+    pub message_bytes: u64,
+}
+
+/// Totals over a run.
+#[derive(Clone, Debug, Default)]
+pub struct PipelineTotals {
+    /// CPU seconds per part (index as [`PARTS`]).
+    pub part_cpu: [f64; 3],
+    /// Tasks executed.
+    pub tasks: u64,
+    /// Cross-process message bytes.
+    pub message_bytes: u64,
+    /// Cross-process messages.
+    pub remote_messages: u64,
+    /// Ghost regions copied directly inside a process.
+    pub local_copies: u64,
+}
+
+/// Runs a [`Simulation`] through the task graph.
+pub struct Pipeline<T: Real> {
+    exec: Executor,
+    owners: Vec<u32>,
+    steal_global: bool,
+    max_k: usize,
+    graphs: HashMap<usize, TaskGraph>,
+    outgoing: Vec<Vec<Outgoing>>,
+    /// Slot index per (block, recv index) when the sender is remote.
+    slot_of: Vec<Vec<Option<usize>>>,
+    slots: Vec<Mutex<Vec<T>>>,
+    stats: Vec<Mutex<SweepStats>>,
+    interval: u64,
+    current: IntervalStats,
+    /// Finished intervals.
+    pub intervals: Vec<IntervalStats>,
+    /// Totals.
+    pub totals: PipelineTotals,
+    trace: Option<TraceWriter>,
+    trace_offset_ns: u64,
+    /// First step of every traced run, so trace events carry absolute step numbers.
+    trace_bases: std::sync::Arc<Mutex<Vec<u64>>>,
+    _marker: std::marker::PhantomData<T>,
+}
+
+impl<T: Real> Pipeline<T> {
+    /// A pipeline for `sim`'s blocks with the given owners (block id → process), running at most `max_k`
+    /// steps per graph and measuring intervals of `interval` steps.
+    pub fn new(sim: &Simulation<T>, exec: Executor, owners: Vec<u32>, max_k: usize, interval: u64) -> Self {
+        assert_eq!(owners.len(), sim.blocks.len());
+        let steal_global = exec.steal() == blockflow_scheduler::executor::Steal::Global;
+        let mut outgoing = vec![Vec::new(); sim.blocks.len()];
+        let mut slot_of = Vec::with_capacity(sim.blocks.len());
+        let mut nslots = 0;
+        for b in &sim.blocks {
+            let mut v = Vec::with_capacity(b.recv.len());
+            for (r, g) in b.recv.iter().enumerate() {
+                if owners[g.from] != owners[b.id] {
+                    outgoing[g.from].push(Outgoing {
+                        receiver: b.id,
+                        recv: r,
+                        slot: nslots,
+                    });
+                    v.push(Some(nslots));
+                    nslots += 1;
+                } else {
+                    v.push(None);
+                }
+            }
+            slot_of.push(v);
+        }
+        Pipeline {
+            exec,
+            owners,
+            steal_global,
+            max_k: max_k.max(1),
+            graphs: HashMap::new(),
+            outgoing,
+            slot_of,
+            slots: (0..nslots).map(|_| Mutex::new(Vec::new())).collect(),
+            stats: Vec::new(),
+            interval,
+            current: IntervalStats::default(),
+            intervals: Vec::new(),
+            totals: PipelineTotals::default(),
+            trace: None,
+            trace_offset_ns: 0,
+            trace_bases: Default::default(),
+            _marker: std::marker::PhantomData,
+        }
+    }
+
+    /// Records a Chrome trace of every run from now on; events carry the absolute step of their task.
+    pub fn enable_trace(&mut self) {
+        let cores = self.exec.cores().to_vec();
+        let bases = self.trace_bases.clone();
+        self.trace = Some(
+            TraceWriter::new(
+                PARTS.iter().map(|s| s.to_string()).collect(),
+                cores,
+                self.exec.threads_per_process(),
+            )
+            .with_step(move |run, spec| bases.lock().expect("trace bases")[run] + (spec.payload >> 2) as u64 + 1),
+        );
+    }
+
+    /// Writes the trace recorded so far.
+    pub fn write_trace(&self, path: &std::path::Path) -> std::io::Result<()> {
+        match &self.trace {
+            Some(t) => t.write(path),
+            None => Ok(()),
+        }
+    }
+
+    /// The executor (processes, threads, cores).
+    pub fn executor(&self) -> &Executor {
+        &self.exec
+    }
+
+    /// Block owners.
+    pub fn owners(&self) -> &[u32] {
+        &self.owners
+    }
+
+    /// Number of tasks of the one-step graph.
+    pub fn tasks_per_step(&mut self, sim: &Simulation<T>) -> usize {
+        self.graph(sim, 1).len()
+    }
+
+    /// Writes the initial state's pages from a thread of each block's owner (first touch: on a NUMA
+    /// machine the memory then lives next to the cores that use it). Call before the first step.
+    pub fn first_touch(&self, sim: &Simulation<T>) {
+        let owners = &self.owners;
+        self.exec.on_each_process(|p| {
+            for b in sim.blocks.iter().filter(|b| owners[b.id] == p) {
+                // SAFETY: each block is touched by exactly one process's thread, nothing else runs.
+                let f = unsafe { b.field_mut(1) };
+                let src = b.field(0);
+                for s in &b.segments {
+                    for q in 0..blockflow_kernels::d3q19::Q {
+                        for i in s.start..s.start + s.len {
+                            f.set(q, i, src.get(q, i));
+                        }
+                    }
+                }
+            }
+        });
+    }
+
+    fn graph(&mut self, sim: &Simulation<T>, k: usize) -> &TaskGraph {
+        let owners = &self.owners;
+        let outgoing = &self.outgoing;
+        self.graphs
+            .entry(k)
+            .or_insert_with(|| build_graph(&sim.blocks, owners, outgoing, k))
+    }
+
+    /// Advances `sim` by `steps` steps through the task graph. On instability the simulation stops at the
+    /// end of the graph run in which it was detected; the report names the first step (and lowest block)
+    /// whose sweep saw it, and the cell as found in the state after that run.
+    pub fn advance(&mut self, sim: &mut Simulation<T>, steps: u64) -> Result<(), Instability> {
+        let mut left = steps;
+        while left > 0 {
+            let to_interval = self.interval - sim.step % self.interval;
+            let k = (self.max_k as u64).min(left).min(to_interval) as usize;
+            self.run_graph(sim, k)?;
+            left -= k as u64;
+            if sim.step % self.interval == 0 {
+                self.close_interval(sim.step);
+            }
+        }
+        Ok(())
+    }
+
+    /// Closes the current measurement interval (also called at the end of a run for a partial interval).
+    pub fn close_interval(&mut self, step: u64) {
+        if step <= self.current.start {
+            return;
+        }
+        let mut c = std::mem::take(&mut self.current);
+        c.end = step;
+        c.imbalance = load_imbalance(&c.process_load);
+        self.intervals.push(c);
+        self.current.start = step;
+    }
+
+    fn run_graph(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Instability> {
+        let nb = sim.blocks.len();
+        if self.stats.len() < k * nb {
+            self.stats.resize_with(k * nb, || Mutex::new(SweepStats::default()));
+        }
+        self.graph(sim, k);
+        let graph = self.graphs.remove(&k).expect("graph built above");
+        let base = sim.step;
+        let params = sim.params;
+        let kernel: KernelChoice = sim.kernel;
+        let blocks = &sim.blocks;
+        let slots = &self.slots;
+        let slot_of = &self.slot_of;
+        let outgoing = &self.outgoing;
+        let stats = &self.stats;
+        let t0 = Instant::now();
+        let run = self.exec.run(&graph, |_t: TaskId, spec: &TaskSpec, _w| {
+            let b = &blocks[spec.block as usize];
+            let kk = (spec.payload >> 2) as usize;
+            let p = ((base + kk as u64) % 2) as usize;
+            match spec.payload & 3 {
+                KIND_SEND => {
+                    for o in &outgoing[b.id] {
+                        let g = &blocks[o.receiver].recv[o.recv];
+                        let mut buf = slots[o.slot].lock().expect("slot");
+                        fluid::pack(b, p, g.offset, &g.directions, &mut buf);
+                    }
+                }
+                KIND_COMM => {
+                    for (r, g) in b.recv.iter().enumerate() {
+                        match slot_of[b.id][r] {
+                            Some(s) => fluid::unpack(b, p, g.offset, &g.directions, &slots[s].lock().expect("slot")),
+                            None => fluid::copy_ghost(&blocks[g.from], b, p, g.offset, &g.directions),
+                        }
+                    }
+                }
+                KIND_BOUNDARY => fluid::boundary(b, p),
+                _ => {
+                    // SAFETY: the graph orders every task touching field 1 - p of this block or writing
+                    // field p around this sweep (module docs).
+                    let st = unsafe { fluid::stream_collide(b, p, &params, kernel) };
+                    *stats[kk * blocks.len() + b.id].lock().expect("stats") = st;
+                }
+            }
+        });
+        let wall = t0.elapsed().as_secs_f64();
+        self.account(&graph, &run.records, wall, sim, k);
+        if let Some(tr) = self.trace.as_mut() {
+            self.trace_bases.lock().expect("trace bases").push(base);
+            tr.add_run(&graph, &run.records, self.trace_offset_ns);
+            self.trace_offset_ns += run.wall_ns;
+        }
+        self.graphs.insert(k, graph);
+        // Instability check in step order, then block order.
+        for kk in 0..k {
+            let row: Vec<SweepStats> = (0..nb)
+                .map(|b| *self.stats[kk * nb + b].lock().expect("stats"))
+                .collect();
+            let limit2 = sim.velocity_limit * sim.velocity_limit;
+            if row
+                .iter()
+                .any(|st| st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2)
+            {
+                sim.step = base + k as u64 - 1;
+                let mut e = match sim.finish_step(&row) {
+                    Err(e) => e,
+                    Ok(()) => unreachable!("the row holds a bad statistic"),
+                };
+                e.step = base + kk as u64 + 1;
+                return Err(e);
+            }
+        }
+        sim.step = base + k as u64;
+        Ok(())
+    }
+
+    fn account(&mut self, graph: &TaskGraph, records: &[TaskRecord], wall: f64, sim: &Simulation<T>, k: usize) {
+        let procs = self.exec.processes();
+        if self.current.process_load.len() != procs {
+            self.current.process_load = vec![0.0; procs];
+        }
+        let mut durations = Vec::with_capacity(records.len());
+        for (spec, r) in graph.specs().iter().zip(records) {
+            let cpu = r.cpu_ns as f64 * 1e-9;
+            self.totals.part_cpu[spec.part as usize] += cpu;
+            if spec.part != PART_EXCHANGE {
+                self.current.process_load[spec.owner as usize] += cpu;
+            }
+            durations.push(r.cpu_ns);
+        }
+        self.totals.tasks += records.len() as u64;
+        let makespan = replay_makespan(
+            graph,
+            &durations,
+            procs,
+            self.exec.threads_per_process(),
+            self.steal_global,
+        );
+        self.current.modeled_seconds += makespan as f64 * 1e-9;
+        self.current.wall_seconds += wall;
+        let mut bytes = 0u64;
+        let mut remote = 0u64;
+        for o in self.outgoing.iter().flatten() {
+            let g = &sim.blocks[o.receiver].recv[o.recv];
+            bytes += (region_cells(&sim.blocks[o.receiver], g.offset) * g.directions.len() * T::BYTES) as u64;
+            remote += 1;
+        }
+        let local: u64 = sim.blocks.iter().map(|b| b.recv.len() as u64).sum::<u64>() - remote;
+        self.totals.message_bytes += bytes * k as u64;
+        self.totals.remote_messages += remote * k as u64;
+        self.totals.local_copies += local * k as u64;
+        self.current.message_bytes += bytes * k as u64;
+    }
+}
+
+fn region_cells<T: Real>(b: &Block<T>, off: [i32; 3]) -> usize {
+    (0..3).map(|a| if off[a] == 0 { b.layout.size[a] } else { 1 }).product()
+}
+
+/// Builds the graph of `k` consecutive steps (see the module docs for tasks and edges).
+fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Outgoing>], k: usize) -> TaskGraph {
+    let nb = blocks.len();
+    #[derive(Clone, Copy, Default)]
+    struct Ids {
+        send: Option<TaskId>,
+        comm: Option<TaskId>,
+        boundary: Option<TaskId>,
+        sweep: Option<TaskId>,
+    }
+    let mut g = GraphBuilder::new();
+    let mut ids = vec![Ids::default(); nb * k];
+    for s in 0..k {
+        for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
+            let owner = owners[b.id];
+            let mk = |g: &mut GraphBuilder, part: u8, kind: u32| {
+                g.add(TaskSpec {
+                    owner,
+                    part,
+                    block: b.id as u32,
+                    payload: payload(s, kind),
+                })
+            };
+            let id = &mut ids[s * nb + b.id];
+            if !outgoing[b.id].is_empty() {
+                id.send = Some(mk(&mut g, PART_EXCHANGE, KIND_SEND));
+            }
+            if !b.recv.is_empty() {
+                id.comm = Some(mk(&mut g, PART_EXCHANGE, KIND_COMM));
+            }
+            if !b.links.is_empty() {
+                id.boundary = Some(mk(&mut g, PART_BOUNDARY, KIND_BOUNDARY));
+            }
+            id.sweep = Some(mk(&mut g, PART_LBM, KIND_SWEEP));
+        }
+    }
+    let compute = |i: &Ids| i.boundary.or(i.sweep).expect("fluid block has a sweep");
+    let first = |i: &Ids| i.comm.or(i.boundary).or(i.sweep).expect("fluid block has a sweep");
+    for s in 0..k {
+        for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
+            let me = ids[s * nb + b.id];
+            let sweep = me.sweep.expect("sweep");
+            // own chain
+            if let Some(c) = me.comm {
+                g.edge(c, compute(&me));
+            }
+            if let Some(bd) = me.boundary {
+                g.edge(bd, sweep);
+            }
+            if let Some(sd) = me.send {
+                g.edge(sd, compute(&me));
+            }
+            if s + 1 < k {
+                let next = ids[(s + 1) * nb + b.id];
+                g.edge(sweep, first(&next));
+                if let Some(sd) = next.send {
+                    g.edge(sweep, sd);
+                }
+            }
+            // neighbours
+            if let Some(c) = me.comm {
+                for r in &b.recv {
+                    let n = ids[s * nb + r.from];
+                    if owners[r.from] == owners[b.id] {
+                        if r.from != b.id {
+                            if s > 0 {
+                                g.edge(ids[(s - 1) * nb + r.from].sweep.expect("sweep"), c);
+                            }
+                            g.edge(c, compute(&n));
+                        }
+                    } else {
+                        g.edge(n.send.expect("remote sender has a send task"), c);
+                        if s + 1 < k {
+                            g.edge(c, ids[(s + 1) * nb + r.from].send.expect("send"));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    g.build().expect("the step graph is acyclic")
+}
