@@ -74,6 +74,12 @@ pub enum Command {
 /// Benchmarks.
 #[derive(Subcommand, Debug)]
 pub enum BenchKind {
+    /// Per-task overhead and the fluid step through the task graph vs a plain loop on the same threads.
+    Scheduler {
+        /// Short timings.
+        #[arg(long)]
+        quick: bool,
+    },
     /// Copy-bandwidth roofline and the fused kernel's MLUPS (f64, f32; 1 and 2 threads).
     Kernel {
         /// Short timings.
@@ -173,6 +179,13 @@ pub fn execute(cli: Cli) -> Result<()> {
                 topo.describe(),
                 describe_placement(processes, threads_per_process, &cores)
             ));
+            Ok(())
+        }
+        Command::Bench {
+            which: BenchKind::Scheduler { quick },
+        } => {
+            let rows = crate::bench_scheduler::run(quick, &[(1, 1), (1, 2), (2, 1)])?;
+            print_out(&crate::bench_scheduler::to_markdown(&rows));
             Ok(())
         }
         Command::Bench {

@@ -7,6 +7,7 @@
 
 pub mod balance;
 pub mod bench_kernel;
+pub mod bench_scheduler;
 pub mod block;
 pub mod cli;
 pub mod config;

@@ -244,7 +244,7 @@ impl<T: Real> Pipeline<T> {
             let k = (self.max_k as u64).min(left).min(to_interval) as usize;
             self.run_graph(sim, k)?;
             left -= k as u64;
-            if sim.step % self.interval == 0 {
+            if sim.step.is_multiple_of(self.interval) {
                 self.close_interval(sim.step);
             }
         }

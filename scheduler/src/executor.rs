@@ -539,8 +539,16 @@ impl Executor {
         for &r in roots {
             let owner = graph.spec(r).owner as usize;
             sh.injectors[owner].push(r);
-            cache.roots_per_process[owner] += 1;
+            // Wake a worker of the owner as its first root arrives, so it starts while we push the rest.
+            let count = &mut cache.roots_per_process[owner];
+            *count += 1;
+            if *count == 1 {
+                sh.wake_for(owner);
+            }
         }
+        // After the last push (a worker woken above may have drained its injector and gone back to sleep
+        // before we pushed more): wake up to T workers per process with roots; with global stealing, idle
+        // workers elsewhere for the roots nobody was woken for.
         fence(Ordering::SeqCst);
         let mut surplus = 0;
         for (p, &count) in cache.roots_per_process.iter().enumerate() {
@@ -551,7 +559,6 @@ impl Executor {
             surplus += count - woken;
         }
         if sh.global {
-            // Idle workers of other processes may help with the roots nobody was woken for.
             'outer: for p in 0..sh.processes {
                 while surplus > 0 {
                     if !sh.wake_one_in(p) {
@@ -1125,6 +1132,18 @@ mod tests {
         cfg.cores[1] = Some(1 << 20);
         let e = Executor::new(cfg).unwrap_err();
         assert!(e.contains("worker 1") && e.contains("core 1048576"), "{e}");
+        // A core that exists in no cpu set of this machine: the pin itself fails.
+        let available = core_affinity::get_core_ids().map(|c| c.len()).unwrap_or(0);
+        if available < 512 {
+            let cfg = PoolConfig {
+                processes: 2,
+                threads_per_process: 1,
+                cores: vec![Some(0), Some(600)],
+                steal: Steal::Process,
+            };
+            let e = Executor::new(cfg).unwrap_err();
+            assert!(e.contains("worker 1") && e.contains("core 600"), "{e}");
+        }
     }
 
     #[test]

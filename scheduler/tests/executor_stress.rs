@@ -196,6 +196,127 @@ fn thousand_random_dags_finish_under_a_watchdog() {
     }
 }
 
+/// One step of 4×4×4 periodic blocks, 6 parts each, with face-neighbour edges (as in the overhead bench).
+fn stencil(processes: u32) -> (TaskGraph, Vec<(TaskId, TaskId)>) {
+    const N: u32 = 4;
+    let blocks = N * N * N;
+    let id = |b: u32, part: u32| b * 6 + part;
+    let mut g = GraphBuilder::new();
+    for b in 0..blocks {
+        for part in 0..6 {
+            g.add(TaskSpec {
+                owner: b * processes / blocks,
+                part: part as u8,
+                block: b,
+                payload: 0,
+            });
+        }
+    }
+    let mut edges = Vec::new();
+    for b in 0..blocks {
+        let (x, y, z) = (b % N, (b / N) % N, b / (N * N));
+        edges.extend([(id(b, 0), id(b, 1)), (id(b, 1), id(b, 2)), (id(b, 2), id(b, 3))]);
+        for (dx, dy, dz) in [
+            (1, 0, 0),
+            (N - 1, 0, 0),
+            (0, 1, 0),
+            (0, N - 1, 0),
+            (0, 0, 1),
+            (0, 0, N - 1),
+        ] {
+            let nb = (x + dx) % N + ((y + dy) % N) * N + ((z + dz) % N) * N * N;
+            edges.push((id(nb, 2), id(b, 3)));
+        }
+        edges.extend([(id(b, 3), id(b, 4)), (id(b, 4), id(b, 5))]);
+    }
+    for &(a, b) in &edges {
+        g.edge(a, b);
+    }
+    (g.build().expect("acyclic"), edges)
+}
+
+/// Many short runs of empty tasks back to back: workers go to sleep and are woken at every run start, and a
+/// worker that drains its injector may park while the driver is still pushing roots (a lost wake-up there
+/// once hung a run after some 30 000 runs).
+#[test]
+fn many_short_runs_never_lose_a_wake_up() {
+    let (tx, rx) = mpsc::channel();
+    let worker = thread::spawn(move || {
+        for (p, t, steal, runs) in [
+            (2, 1, Steal::Process, 15_000),
+            (1, 2, Steal::Process, 10_000),
+            (3, 2, Steal::Global, 5_000),
+        ] {
+            let pool = Executor::new(PoolConfig::unpinned(p, t).with_steal(steal)).expect("valid pool");
+            let (graph, edges) = stencil(p as u32);
+            let done = AtomicU64::new(0);
+            for _ in 0..runs {
+                pool.run(&graph, |_, _, _| {
+                    done.fetch_add(1, Ordering::Relaxed);
+                });
+            }
+            assert_eq!(done.load(Ordering::Relaxed), runs * graph.len() as u64);
+            let case = Case {
+                busy_ns: vec![0; graph.len()],
+                graph,
+                edges,
+            };
+            check_case(&pool, &case, &format!("stencil on {p}x{t} {steal:?}"));
+        }
+        let _ = tx.send(());
+    });
+    match rx.recv_timeout(Duration::from_secs(120)) {
+        Ok(()) => worker.join().expect("short-run thread"),
+        Err(mpsc::RecvTimeoutError::Disconnected) => {
+            if let Err(e) = worker.join() {
+                std::panic::resume_unwind(e);
+            }
+        }
+        Err(mpsc::RecvTimeoutError::Timeout) => panic!("back-to-back runs did not finish within 120 s (lost wake-up?)"),
+    }
+}
+
+/// The driver pushes one root of process 1, then many of process 0, then more of process 1: the worker of
+/// process 1 runs the first, goes idle and parks while the driver is still busy, and must be woken for the
+/// later ones.
+#[test]
+fn late_roots_wake_a_parked_worker() {
+    let (tx, rx) = mpsc::channel();
+    let worker = thread::spawn(move || {
+        let pool = Executor::new(PoolConfig::unpinned(2, 1)).expect("valid pool");
+        let mut g = GraphBuilder::new();
+        let owners = std::iter::once(1)
+            .chain(std::iter::repeat_n(0, 300_000))
+            .chain(std::iter::repeat_n(1, 10));
+        for (i, owner) in owners.enumerate() {
+            g.add(TaskSpec {
+                owner,
+                part: 0,
+                block: i as u32,
+                payload: 0,
+            });
+        }
+        let graph = g.build().expect("no edges");
+        for _ in 0..5 {
+            let done = AtomicU64::new(0);
+            pool.run(&graph, |_, _, _| {
+                done.fetch_add(1, Ordering::Relaxed);
+            });
+            assert_eq!(done.load(Ordering::Relaxed), graph.len() as u64);
+        }
+        let _ = tx.send(());
+    });
+    match rx.recv_timeout(Duration::from_secs(60)) {
+        Ok(()) => worker.join().expect("late-roots thread"),
+        Err(mpsc::RecvTimeoutError::Disconnected) => {
+            if let Err(e) = worker.join() {
+                std::panic::resume_unwind(e);
+            }
+        }
+        Err(mpsc::RecvTimeoutError::Timeout) => panic!("a worker was not woken for late roots"),
+    }
+}
+
 #[test]
 fn panics_in_random_dags_leave_the_pool_usable() {
     let (tx, rx) = mpsc::channel();
