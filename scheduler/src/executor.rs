@@ -970,12 +970,7 @@ mod tests {
     use std::sync::atomic::AtomicU64;
 
     fn spec(owner: u32) -> TaskSpec {
-        TaskSpec {
-            owner,
-            part: 0,
-            block: 0,
-            payload: 0,
-        }
+        TaskSpec::for_owner(owner)
     }
 
     /// Runs `graph` and checks: every task exactly once, edges respected (sequence numbers), owner process

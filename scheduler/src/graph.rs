@@ -19,6 +19,18 @@ pub struct TaskSpec {
     pub payload: u32,
 }
 
+impl TaskSpec {
+    /// A task owned by `owner` with part, block and payload 0 (tests and synthetic graphs).
+    pub fn for_owner(owner: u32) -> Self {
+        TaskSpec {
+            owner,
+            part: 0,
+            block: 0,
+            payload: 0,
+        }
+    }
+}
+
 /// Builder: add tasks, then edges `before → after`, then [`GraphBuilder::build`].
 #[derive(Clone, Debug, Default)]
 pub struct GraphBuilder {
@@ -190,12 +202,7 @@ mod tests {
     use super::*;
 
     fn spec(owner: u32) -> TaskSpec {
-        TaskSpec {
-            owner,
-            part: 0,
-            block: 0,
-            payload: 0,
-        }
+        TaskSpec::for_owner(owner)
     }
 
     #[test]

@@ -138,12 +138,7 @@ mod tests {
     use crate::graph::{GraphBuilder, TaskSpec};
 
     fn spec(owner: u32) -> TaskSpec {
-        TaskSpec {
-            owner,
-            part: 0,
-            block: 0,
-            payload: 0,
-        }
+        TaskSpec::for_owner(owner)
     }
 
     /// Tasks with the given owners and edges.
