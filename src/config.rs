@@ -332,6 +332,19 @@ impl Config {
                 }
             }
         }
+        let pr = &self.processes;
+        for (name, v) in [
+            ("processes.count", pr.count),
+            ("processes.threads_per_process", pr.threads_per_process),
+            ("processes.steps_per_graph", pr.steps_per_graph),
+        ] {
+            if v == 0 || v > 4096 {
+                return config_err(format!("{name} = {v}: must be between 1 and 4096"));
+            }
+        }
+        if self.balance.interval == 0 {
+            return config_err("balance.interval = 0: must be at least 1 step");
+        }
         for (name, v) in [
             ("run.series_every", self.run.series_every),
             ("run.vtk_every", self.run.vtk_every),

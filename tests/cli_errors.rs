@@ -72,6 +72,13 @@ fn bad_values_name_their_key() {
         &["domain.periodic"],
     );
     fails_cleanly(&ch, &["--set", "novalue"], &["--set novalue"]);
+    fails_cleanly(&ch, &["--processes", "0"], &["processes.count"]);
+    fails_cleanly(&ch, &["--threads-per-process", "0"], &["processes.threads_per_process"]);
+    fails_cleanly(&ch, &["--interval", "0"], &["balance.interval"]);
+    fails_cleanly(&ch, &["--pin", "foo"], &["processes.pin", "foo"]);
+    fails_cleanly(&ch, &["--pin", "0,1,99999"], &["processes.pin"]);
+    fails_cleanly(&ch, &["--balance", "metis"], &["balance.strategy", "metis"]);
+    fails_cleanly(&ch, &["--set", "processes.steal=\"everywhere\""], &["processes.steal"]);
 }
 
 #[test]
