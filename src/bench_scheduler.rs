@@ -102,7 +102,7 @@ fn plain_loop(sim: &mut Simulation<f64>, owners: &[u32], cores: &[Option<usize>]
 
 /// Runs the benchmark for the given pool shapes.
 pub fn run(quick: bool, shapes: &[(usize, usize)]) -> Result<Vec<SchedulerRow>> {
-    let steps: u64 = if quick { 8 } else { 40 };
+    let steps: u64 = if quick { 8 } else { 32 };
     let mut rows = Vec::new();
     for &(p, t) in shapes {
         let cfg = scene_config(p, t, config::ProcessesConfig::default().steps_per_graph)?;
@@ -116,11 +116,11 @@ pub fn run(quick: bool, shapes: &[(usize, usize)]) -> Result<Vec<SchedulerRow>> 
         let mut pipe = Pipeline::new(&sim, exec, owners.clone(), cfg.processes.steps_per_graph, u64::MAX);
         pipe.first_touch(&sim);
         let cells = sim.fluid_cells() as f64;
-        // warm-up both, then alternate measurements and keep the best of three
+        // warm-up both, then alternate measurements and keep the best of five of each
         pipe.advance(&mut sim, 2).map_err(crate::error::Error::Unstable)?;
         plain_loop(&mut sim, &owners, &cores, t, 2);
         let (mut g, mut l) = (f64::MAX, f64::MAX);
-        for _ in 0..3 {
+        for _ in 0..5 {
             let t0 = Instant::now();
             pipe.advance(&mut sim, steps).map_err(crate::error::Error::Unstable)?;
             g = g.min(t0.elapsed().as_secs_f64());

@@ -394,7 +394,21 @@ fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Out
     }
     let mut g = GraphBuilder::new();
     let mut ids = vec![Ids::default(); nb * k];
+    // Within a step the send tasks get the lowest ids: a worker that finishes a task continues with its
+    // lowest-id ready successor, so a block's sweep is followed at once by the message another process
+    // is waiting for, and run roots are queued sends first.
     for s in 0..k {
+        for b in blocks
+            .iter()
+            .filter(|b| b.fluid_cells > 0 && !outgoing[b.id].is_empty())
+        {
+            ids[s * nb + b.id].send = Some(g.add(TaskSpec {
+                owner: owners[b.id],
+                part: PART_EXCHANGE,
+                block: b.id as u32,
+                payload: payload(s, KIND_SEND),
+            }));
+        }
         for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
             let owner = owners[b.id];
             let mk = |g: &mut GraphBuilder, part: u8, kind: u32| {
@@ -406,9 +420,6 @@ fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Out
                 })
             };
             let id = &mut ids[s * nb + b.id];
-            if !outgoing[b.id].is_empty() {
-                id.send = Some(mk(&mut g, PART_EXCHANGE, KIND_SEND));
-            }
             if !b.recv.is_empty() {
                 id.comm = Some(mk(&mut g, PART_EXCHANGE, KIND_COMM));
             }
