@@ -28,7 +28,13 @@ pub fn pack<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize],
             for y in ry.clone() {
                 let i = base + l.idx(*rx.start(), y, z);
                 // SAFETY: interior cells of the sender's field; no task writes them concurrently (graph).
-                buf.extend_from_slice(unsafe { std::slice::from_raw_parts(f.add(i), n) });
+                unsafe {
+                    if n == 1 {
+                        buf.push(*f.add(i)); // x faces: one strided element per row, no memcpy call
+                    } else {
+                        buf.extend_from_slice(std::slice::from_raw_parts(f.add(i), n));
+                    }
+                }
             }
         }
     }
@@ -48,7 +54,7 @@ pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usi
                 let i = base + l.idx(*rx.start(), y, z);
                 assert!(k + n <= buf.len(), "message shorter than the ghost region");
                 // SAFETY: ghost cells of the receiver, written only by this task (graph).
-                unsafe { std::ptr::copy_nonoverlapping(buf.as_ptr().add(k), f.add(i), n) };
+                unsafe { copy_run(buf.as_ptr().add(k), f.add(i), n) };
                 k += n;
             }
         }
@@ -73,9 +79,23 @@ pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, off
                 let j = base + l.idx(*gx.start(), yg, zg);
                 // SAFETY: interior source cells and ghost destination cells never overlap; the graph orders
                 // this copy after the sender's sweep and before anything else touches these elements.
-                unsafe { std::ptr::copy_nonoverlapping(src.add(i), dst.add(j), n) };
+                unsafe { copy_run(src.add(i), dst.add(j), n) };
             }
         }
+    }
+}
+
+/// Copies a run of `n` values; a single value (the rows of an x face) is a plain load and store instead of
+/// a `memcpy` call, which made x-face exchanges several times slower than y and z faces.
+///
+/// # Safety
+/// Both ranges valid and non-overlapping.
+#[inline(always)]
+unsafe fn copy_run<T: Real>(src: *const T, dst: *mut T, n: usize) {
+    if n == 1 {
+        *dst = *src;
+    } else {
+        std::ptr::copy_nonoverlapping(src, dst, n);
     }
 }
 
