@@ -2,12 +2,14 @@
 //!
 //! D3Q19 lattice ([`d3q19`]), zero-centred structure-of-arrays storage ([`field`]), TRT collision with
 //! Guo forcing (eqs. 2, 3, 5 of Rettinger & Rüde 2019, [`trt`]), pull streaming and the fused kernel
-//! (eq. 4, [`sweep`]), and bounce-back walls ([`bounce_back`]). Nothing here knows about threads.
+//! (eq. 4, [`sweep`]), bounce-back walls ([`bounce_back`]) and the rigid-body hard-contact solver ([`rigid`]).
+//! Nothing here knows about threads.
 
 pub mod bounce_back;
 pub mod d3q19;
 pub mod field;
 pub mod real;
+pub mod rigid;
 pub mod simd;
 pub mod sweep;
 pub mod trt;
