@@ -10,15 +10,9 @@ const G: f64 = 9.81;
 fn params() -> RigidParams {
     RigidParams {
         gravity: DVec3::new(0.0, 0.0, -G),
-        fluid_density: 0.0,
-        restitution: 0.5,
-        friction: 0.3,
-        iterations: 20,
-        relaxation: 1.0,
-        grid_threshold: 64,
         contact_margin: 0.01,
         restitution_threshold: 0.05,
-        position_correction: 0.2,
+        ..RigidParams::default()
     }
 }
 

@@ -1012,14 +1012,7 @@ mod tests {
     }
 
     fn build(owners: &[u32], edges: &[(TaskId, TaskId)]) -> TaskGraph {
-        let mut g = GraphBuilder::new();
-        for &o in owners {
-            g.add(spec(o));
-        }
-        for &(a, b) in edges {
-            g.edge(a, b);
-        }
-        g.build().unwrap()
+        TaskGraph::from_edges(owners, edges).unwrap()
     }
 
     fn chain(n: u32, p: u32) -> (TaskGraph, Vec<(TaskId, TaskId)>) {

@@ -180,6 +180,19 @@ impl TaskGraph {
     pub fn edge_count(&self) -> usize {
         self.succ.len()
     }
+
+    /// A graph of tasks with the given owners (task i owned by `owners[i]`, part, block and payload 0) and
+    /// edges: synthetic graphs for tests and benchmarks.
+    pub fn from_edges(owners: &[u32], edges: &[(TaskId, TaskId)]) -> Result<TaskGraph, String> {
+        let mut g = GraphBuilder::new();
+        for &o in owners {
+            g.add(TaskSpec::for_owner(o));
+        }
+        for &(a, b) in edges {
+            g.edge(a, b);
+        }
+        g.build()
+    }
 }
 
 /// What one execution of one task recorded (the paper's per-part timings come from these).

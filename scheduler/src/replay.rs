@@ -143,14 +143,7 @@ mod tests {
 
     /// Tasks with the given owners and edges.
     fn graph(owners: &[u32], edges: &[(TaskId, TaskId)]) -> TaskGraph {
-        let mut g = GraphBuilder::new();
-        for &o in owners {
-            g.add(spec(o));
-        }
-        for &(a, b) in edges {
-            g.edge(a, b);
-        }
-        g.build().unwrap()
+        TaskGraph::from_edges(owners, edges).unwrap()
     }
 
     #[test]
