@@ -38,41 +38,6 @@ fn chain(n: u32, processes: u32) -> TaskGraph {
     g.build().expect("acyclic")
 }
 
-/// One time step of 4×4×4 periodic blocks, 6 parts each: lbm → boundary → pack; the packs of the six face
-/// neighbours and the own pack → unpack → map → rigid body. Blocks split into contiguous ranges per process.
-fn stencil(processes: u32) -> TaskGraph {
-    const N: u32 = 4;
-    let blocks = N * N * N;
-    let mut g = GraphBuilder::new();
-    let id = |b: u32, part: u32| b * 6 + part;
-    for b in 0..blocks {
-        let owner = b * processes / blocks;
-        for part in 0..6 {
-            g.add(spec(owner, part as u8, b));
-        }
-    }
-    for b in 0..blocks {
-        let (x, y, z) = (b % N, (b / N) % N, b / (N * N));
-        g.edge(id(b, 0), id(b, 1));
-        g.edge(id(b, 1), id(b, 2));
-        g.edge(id(b, 2), id(b, 3));
-        for (dx, dy, dz) in [
-            (1, 0, 0),
-            (N - 1, 0, 0),
-            (0, 1, 0),
-            (0, N - 1, 0),
-            (0, 0, 1),
-            (0, 0, N - 1),
-        ] {
-            let nb = (x + dx) % N + ((y + dy) % N) * N + ((z + dz) % N) * N * N;
-            g.edge(id(nb, 2), id(b, 3));
-        }
-        g.edge(id(b, 3), id(b, 4));
-        g.edge(id(b, 4), id(b, 5));
-    }
-    g.build().expect("acyclic")
-}
-
 fn bench(c: &mut Criterion) {
     let shapes = [(1usize, 1usize), (1, 2), (2, 1)];
     for (p, t) in shapes {
@@ -90,7 +55,7 @@ fn bench(c: &mut Criterion) {
         let graphs = [
             ("independent_10000", independent(10_000, p as u32)),
             ("chain_10000", chain(10_000, p as u32)),
-            ("stencil_64x6", stencil(p as u32)),
+            ("stencil_64x6", TaskGraph::synthetic_stencil(p as u32).0),
         ];
         let mut group = c.benchmark_group(format!("scheduler_{p}x{t}"));
         group.sample_size(10);

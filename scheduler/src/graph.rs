@@ -181,6 +181,48 @@ impl TaskGraph {
         self.succ.len()
     }
 
+    /// A synthetic step of 4×4×4 periodic blocks with 6 parts each (lbm → boundary → pack; the packs of the
+    /// six face neighbours and the own pack → unpack → map → rigid body), blocks split into contiguous
+    /// ranges over `processes`: the stencil shape of the fluid step, for the executor's stress test and
+    /// overhead bench. Returns the graph and its edges.
+    pub fn synthetic_stencil(processes: u32) -> (TaskGraph, Vec<(TaskId, TaskId)>) {
+        const N: u32 = 4;
+        let blocks = N * N * N;
+        let id = |b: u32, part: u32| b * 6 + part;
+        let mut g = GraphBuilder::new();
+        for b in 0..blocks {
+            for part in 0..6 {
+                g.add(TaskSpec {
+                    owner: b * processes / blocks,
+                    part: part as u8,
+                    block: b,
+                    payload: 0,
+                });
+            }
+        }
+        let mut edges = Vec::new();
+        for b in 0..blocks {
+            let (x, y, z) = (b % N, (b / N) % N, b / (N * N));
+            edges.extend([(id(b, 0), id(b, 1)), (id(b, 1), id(b, 2)), (id(b, 2), id(b, 3))]);
+            for (dx, dy, dz) in [
+                (1, 0, 0),
+                (N - 1, 0, 0),
+                (0, 1, 0),
+                (0, N - 1, 0),
+                (0, 0, 1),
+                (0, 0, N - 1),
+            ] {
+                let nb = (x + dx) % N + ((y + dy) % N) * N + ((z + dz) % N) * N * N;
+                edges.push((id(nb, 2), id(b, 3)));
+            }
+            edges.extend([(id(b, 3), id(b, 4)), (id(b, 4), id(b, 5))]);
+        }
+        for &(a, b) in &edges {
+            g.edge(a, b);
+        }
+        (g.build().expect("the stencil graph is acyclic"), edges)
+    }
+
     /// A graph of tasks with the given owners (task i owned by `owners[i]`, part, block and payload 0) and
     /// edges: synthetic graphs for tests and benchmarks.
     pub fn from_edges(owners: &[u32], edges: &[(TaskId, TaskId)]) -> Result<TaskGraph, String> {

@@ -196,45 +196,6 @@ fn thousand_random_dags_finish_under_a_watchdog() {
     }
 }
 
-/// One step of 4×4×4 periodic blocks, 6 parts each, with face-neighbour edges (as in the overhead bench).
-fn stencil(processes: u32) -> (TaskGraph, Vec<(TaskId, TaskId)>) {
-    const N: u32 = 4;
-    let blocks = N * N * N;
-    let id = |b: u32, part: u32| b * 6 + part;
-    let mut g = GraphBuilder::new();
-    for b in 0..blocks {
-        for part in 0..6 {
-            g.add(TaskSpec {
-                owner: b * processes / blocks,
-                part: part as u8,
-                block: b,
-                payload: 0,
-            });
-        }
-    }
-    let mut edges = Vec::new();
-    for b in 0..blocks {
-        let (x, y, z) = (b % N, (b / N) % N, b / (N * N));
-        edges.extend([(id(b, 0), id(b, 1)), (id(b, 1), id(b, 2)), (id(b, 2), id(b, 3))]);
-        for (dx, dy, dz) in [
-            (1, 0, 0),
-            (N - 1, 0, 0),
-            (0, 1, 0),
-            (0, N - 1, 0),
-            (0, 0, 1),
-            (0, 0, N - 1),
-        ] {
-            let nb = (x + dx) % N + ((y + dy) % N) * N + ((z + dz) % N) * N * N;
-            edges.push((id(nb, 2), id(b, 3)));
-        }
-        edges.extend([(id(b, 3), id(b, 4)), (id(b, 4), id(b, 5))]);
-    }
-    for &(a, b) in &edges {
-        g.edge(a, b);
-    }
-    (g.build().expect("acyclic"), edges)
-}
-
 /// Many short runs of empty tasks back to back: workers go to sleep and are woken at every run start, and a
 /// worker that drains its injector may park while the driver is still pushing roots (a lost wake-up there
 /// once hung a run after some 30 000 runs).
@@ -248,7 +209,7 @@ fn many_short_runs_never_lose_a_wake_up() {
             (3, 2, Steal::Global, 5_000),
         ] {
             let pool = Executor::new(PoolConfig::unpinned(p, t).with_steal(steal)).expect("valid pool");
-            let (graph, edges) = stencil(p as u32);
+            let (graph, edges) = TaskGraph::synthetic_stencil(p as u32);
             let done = AtomicU64::new(0);
             for _ in 0..runs {
                 pool.run(&graph, |_, _, _| {
