@@ -117,12 +117,12 @@ pub fn run(quick: bool, shapes: &[(usize, usize)]) -> Result<Vec<SchedulerRow>> 
         pipe.first_touch(&sim);
         let cells = sim.fluid_cells() as f64;
         // warm-up both, then alternate measurements and keep the best of five of each
-        pipe.advance(&mut sim, 2).map_err(crate::error::Error::Unstable)?;
+        pipe.advance(&mut sim, 2)?;
         plain_loop(&mut sim, &owners, &cores, t, 2);
         let (mut g, mut l) = (f64::MAX, f64::MAX);
         for _ in 0..5 {
             let t0 = Instant::now();
-            pipe.advance(&mut sim, steps).map_err(crate::error::Error::Unstable)?;
+            pipe.advance(&mut sim, steps)?;
             g = g.min(t0.elapsed().as_secs_f64());
             l = l.min(plain_loop(&mut sim, &owners, &cores, t, steps));
         }

@@ -80,6 +80,12 @@ pub enum BenchKind {
         #[arg(long)]
         quick: bool,
     },
+    /// Rigid-body sub-step: time and contacts per second for 100 … 20 000 spheres, grid vs all pairs.
+    Rigid {
+        /// Short timings.
+        #[arg(long)]
+        quick: bool,
+    },
     /// Copy-bandwidth roofline and the fused kernel's MLUPS (f64, f32; 1 and 2 threads).
     Kernel {
         /// Short timings.
@@ -155,7 +161,11 @@ pub fn execute(cli: Cli) -> Result<()> {
             for (k, v) in &s.observables {
                 text += &format!("  {k} = {v:.6e}\n");
             }
-            text += &format!("  checksum {}; results in {}\n", s.checksum.fluid, dir.display());
+            let sum = match &s.checksum.particles {
+                Some(p) => format!("checksums fluid {} particles {p}", s.checksum.fluid),
+                None => format!("checksum {}", s.checksum.fluid),
+            };
+            text += &format!("  {sum}; results in {}\n", dir.display());
             print_out(&text);
             Ok(())
         }
@@ -186,6 +196,13 @@ pub fn execute(cli: Cli) -> Result<()> {
         } => {
             let rows = crate::bench_scheduler::run(quick, &[(1, 1), (1, 2), (2, 1)])?;
             print_out(&crate::bench_scheduler::to_markdown(&rows));
+            Ok(())
+        }
+        Command::Bench {
+            which: BenchKind::Rigid { quick },
+        } => {
+            let report = crate::bench_rigid::run(quick)?;
+            print_out(&crate::bench_rigid::to_markdown(&report));
             Ok(())
         }
         Command::Bench {

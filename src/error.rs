@@ -50,6 +50,9 @@ pub enum Error {
     Io(String),
     /// The run became unstable.
     Unstable(Instability),
+    /// The rigid bodies left what the solver can follow (a body moved too far in one sub-step, or out of
+    /// the blocks that had tasks). The message names the body, block and step.
+    ParticlesUnstable(String),
 }
 
 impl fmt::Display for Error {
@@ -57,6 +60,7 @@ impl fmt::Display for Error {
         match self {
             Error::Config(m) | Error::Io(m) => f.write_str(m),
             Error::Unstable(i) => i.fmt(f),
+            Error::ParticlesUnstable(m) => f.write_str(m),
         }
     }
 }
@@ -68,7 +72,7 @@ impl Error {
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::Config(_) | Error::Io(_) => 1,
-            Error::Unstable(_) => 3,
+            Error::Unstable(_) | Error::ParticlesUnstable(_) => 3,
         }
     }
 }

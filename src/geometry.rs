@@ -75,6 +75,8 @@ pub struct Geometry {
     pub faces: [[Option<FaceWall>; 2]; 3],
     /// Planes (half-spaces) cutting into the domain.
     pub planes: Vec<Plane>,
+    /// No fluid anywhere (`fluid.enabled = false`): every cell is solid, blocks get no fluid work.
+    pub no_fluid: bool,
 }
 
 /// What a cell is, before neighbourhood flags are added.
@@ -92,6 +94,9 @@ impl Geometry {
     /// plane and the moving-wall terms cancel in pairs: mass stays exact); inside, the first plane that
     /// claims the cell centre decides.
     pub fn classify(&self, d: &DomainSpec, g: [i64; 3]) -> CellKind {
+        if self.no_fluid {
+            return CellKind::Wall([0.0; 3]);
+        }
         let g = d.wrap(g);
         let n = d.cells();
         let mut wall: Option<[f64; 3]> = None;

@@ -7,6 +7,7 @@
 
 pub mod balance;
 pub mod bench_kernel;
+pub mod bench_rigid;
 pub mod bench_scheduler;
 pub mod block;
 pub mod cli;
@@ -16,6 +17,7 @@ pub mod error;
 pub mod fluid;
 pub mod geometry;
 pub mod io;
+pub mod particles;
 pub mod pipeline;
 pub mod runner;
 pub mod scenes;

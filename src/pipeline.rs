@@ -27,8 +27,9 @@
 
 use crate::block::Block;
 use crate::config::KernelChoice;
-use crate::error::Instability;
+use crate::error::{Error, Instability};
 use crate::fluid;
+use crate::particles::Particles;
 use crate::sim::Simulation;
 use blockflow_kernels::sweep::SweepStats;
 use blockflow_kernels::Real;
@@ -40,19 +41,33 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
-/// Part labels of the fluid tasks (index = `TaskSpec::part`).
-pub const PARTS: [&str; 3] = ["lbm", "boundary", "exchange"];
+/// Part labels of the tasks (index = `TaskSpec::part`).
+pub const PARTS: [&str; 4] = ["lbm", "boundary", "exchange", "rigid_body"];
 const PART_LBM: u8 = 0;
 const PART_BOUNDARY: u8 = 1;
 const PART_EXCHANGE: u8 = 2;
+const PART_RB: u8 = 3;
 
 const KIND_SEND: u32 = 0;
 const KIND_COMM: u32 = 1;
 const KIND_BOUNDARY: u32 = 2;
 const KIND_SWEEP: u32 = 3;
+const KIND_RB: u32 = 4;
+const KIND_RB_SYNC: u32 = 5;
 
+/// Task payload: bits 0–2 the kind, 3–10 the rigid-body sub-step inside the step, 11– the step inside
+/// the graph run.
 fn payload(k: usize, kind: u32) -> u32 {
-    ((k as u32) << 2) | kind
+    ((k as u32) << 11) | kind
+}
+
+fn payload_sub(k: usize, sub: usize, kind: u32) -> u32 {
+    ((k as u32) << 11) | ((sub as u32) << 3) | kind
+}
+
+/// Step of a task inside its graph run.
+fn step_of(payload: u32) -> usize {
+    (payload >> 11) as usize
 }
 
 /// A remote message: which receiver and ghost region a slot feeds.
@@ -86,7 +101,7 @@ pub struct IntervalStats {
 #[derive(Clone, Debug, Default)]
 pub struct PipelineTotals {
     /// CPU seconds per part (index as [`PARTS`]).
-    pub part_cpu: [f64; 3],
+    pub part_cpu: [f64; 4],
     /// Tasks executed.
     pub tasks: u64,
     /// Cross-process message bytes.
@@ -179,7 +194,7 @@ impl<T: Real> Pipeline<T> {
                 cores,
                 self.exec.threads_per_process(),
             )
-            .with_step(move |run, spec| bases.lock().expect("trace bases")[run] + (spec.payload >> 2) as u64 + 1),
+            .with_step(move |run, spec| bases.lock().expect("trace bases")[run] + step_of(spec.payload) as u64 + 1),
         );
     }
 
@@ -229,20 +244,39 @@ impl<T: Real> Pipeline<T> {
     fn graph(&mut self, sim: &Simulation<T>, k: usize) -> &TaskGraph {
         let owners = &self.owners;
         let outgoing = &self.outgoing;
-        self.graphs
-            .entry(k)
-            .or_insert_with(|| build_graph(&sim.blocks, owners, outgoing, k))
+        self.graphs.entry(k).or_insert_with(|| {
+            let mut g = GraphBuilder::new();
+            add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k);
+            if let Some(parts) = &sim.particles {
+                add_rigid_tasks(&mut g, parts, owners, k);
+            }
+            g.build().expect("the step graph is acyclic")
+        })
     }
 
     /// Advances `sim` by `steps` steps through the task graph. On instability the simulation stops at the
     /// end of the graph run in which it was detected; the report names the first step (and lowest block)
     /// whose sweep saw it, and the cell as found in the state after that run.
-    pub fn advance(&mut self, sim: &mut Simulation<T>, steps: u64) -> Result<(), Instability> {
+    pub fn advance(&mut self, sim: &mut Simulation<T>, steps: u64) -> Result<(), Error> {
         let mut left = steps;
         while left > 0 {
             let to_interval = self.interval - sim.step % self.interval;
             let k = (self.max_k as u64).min(left).min(to_interval) as usize;
-            self.run_graph(sim, k)?;
+            let step = sim.step;
+            if let Some(parts) = sim.particles.as_mut() {
+                // The blocks with rigid-body tasks follow the bodies; the graphs are rebuilt when they move.
+                let bodies = parts.bodies(step);
+                if parts.update_active(k as u64, &bodies) {
+                    self.graphs.clear();
+                }
+            }
+            self.run_graph(sim, k).map_err(Error::Unstable)?;
+            if let Some(parts) = sim.particles.as_mut() {
+                parts.collect_stats((k * parts.subcycles) as u64);
+                if let Some(e) = parts.take_error() {
+                    return Err(Error::ParticlesUnstable(e));
+                }
+            }
             left -= k as u64;
             if sim.step.is_multiple_of(self.interval) {
                 self.close_interval(sim.step);
@@ -278,12 +312,26 @@ impl<T: Real> Pipeline<T> {
         let slot_of = &self.slot_of;
         let outgoing = &self.outgoing;
         let stats = &self.stats;
+        let parts = sim.particles.as_ref();
         let t0 = Instant::now();
         let run = self.exec.run(&graph, |_t: TaskId, spec: &TaskSpec, _w| {
             let b = &blocks[spec.block as usize];
-            let kk = (spec.payload >> 2) as usize;
+            let kk = step_of(spec.payload);
             let p = ((base + kk as u64) % 2) as usize;
-            match spec.payload & 3 {
+            match spec.payload & 7 {
+                KIND_RB | KIND_RB_SYNC => {
+                    let parts = parts.expect("rigid-body tasks only exist with particles");
+                    let s = parts.subcycles as u64;
+                    let g = (base + kk as u64) * s + ((spec.payload >> 3) & 0xff) as u64 + 1;
+                    // SAFETY: the graph carries the edges of `particles::tasks`.
+                    unsafe {
+                        if spec.payload & 7 == KIND_RB {
+                            parts.rb(b.id, g)
+                        } else {
+                            parts.rb_sync(b.id, g)
+                        }
+                    }
+                }
                 KIND_SEND => {
                     for o in &outgoing[b.id] {
                         let g = &blocks[o.receiver].recv[o.recv];
@@ -382,8 +430,60 @@ fn region_cells<T: Real>(b: &Block<T>, off: [i32; 3]) -> usize {
     (0..3).map(|a| if off[a] == 0 { b.layout.size[a] } else { 1 }).product()
 }
 
-/// Builds the graph of `k` consecutive steps (see the module docs for tasks and edges).
-fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Outgoing>], k: usize) -> TaskGraph {
+/// Adds the rigid-body tasks of `k` consecutive steps: `rb(b, g)` and `rb_sync(b, g)` for every active
+/// block and sub-step, with the edges documented in [`crate::particles::tasks`].
+fn add_rigid_tasks(g: &mut GraphBuilder, parts: &Particles, owners: &[u32], k: usize) {
+    let nb = parts.blocks.len();
+    let s = parts.subcycles;
+    let active: Vec<usize> = (0..nb).filter(|&b| parts.active[b]).collect();
+    let mut sync: Vec<Option<TaskId>> = vec![None; nb];
+    for kk in 0..k {
+        for sub in 0..s {
+            let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
+            let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
+            for &b in &active {
+                let spec = |kind| TaskSpec {
+                    owner: owners[b],
+                    part: PART_RB,
+                    block: b as u32,
+                    payload: payload_sub(kk, sub, kind),
+                };
+                new_rb[b] = Some(g.add(spec(KIND_RB)));
+            }
+            for &b in &active {
+                let spec = TaskSpec {
+                    owner: owners[b],
+                    part: PART_RB,
+                    block: b as u32,
+                    payload: payload_sub(kk, sub, KIND_RB_SYNC),
+                };
+                new_sync[b] = Some(g.add(spec));
+            }
+            for &b in &active {
+                let me_rb = new_rb[b].expect("active");
+                let me_sync = new_sync[b].expect("active");
+                for &n in &parts.blocks[b].near {
+                    if let Some(prev) = sync[n] {
+                        g.edge(prev, me_rb);
+                    }
+                    if let Some(r) = new_rb[n] {
+                        g.edge(r, me_sync);
+                    }
+                }
+            }
+            sync = new_sync;
+        }
+    }
+}
+
+/// Adds the fluid tasks of `k` consecutive steps (see the module docs for tasks and edges).
+fn add_fluid_tasks<T: Real>(
+    g: &mut GraphBuilder,
+    blocks: &[Block<T>],
+    owners: &[u32],
+    outgoing: &[Vec<Outgoing>],
+    k: usize,
+) {
     let nb = blocks.len();
     #[derive(Clone, Copy, Default)]
     struct Ids {
@@ -392,7 +492,6 @@ fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Out
         boundary: Option<TaskId>,
         sweep: Option<TaskId>,
     }
-    let mut g = GraphBuilder::new();
     let mut ids = vec![Ids::default(); nb * k];
     // Within a step the send tasks get the lowest ids: a worker that finishes a task continues with its
     // lowest-id ready successor, so a block's sweep is followed at once by the message another process
@@ -421,12 +520,12 @@ fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Out
             };
             let id = &mut ids[s * nb + b.id];
             if !b.recv.is_empty() {
-                id.comm = Some(mk(&mut g, PART_EXCHANGE, KIND_COMM));
+                id.comm = Some(mk(g, PART_EXCHANGE, KIND_COMM));
             }
             if !b.links.is_empty() {
-                id.boundary = Some(mk(&mut g, PART_BOUNDARY, KIND_BOUNDARY));
+                id.boundary = Some(mk(g, PART_BOUNDARY, KIND_BOUNDARY));
             }
-            id.sweep = Some(mk(&mut g, PART_LBM, KIND_SWEEP));
+            id.sweep = Some(mk(g, PART_LBM, KIND_SWEEP));
         }
     }
     let compute = |i: &Ids| i.boundary.or(i.sweep).expect("fluid block has a sweep");
@@ -473,5 +572,4 @@ fn build_graph<T: Real>(blocks: &[Block<T>], owners: &[u32], outgoing: &[Vec<Out
             }
         }
     }
-    g.build().expect("the step graph is acyclic")
 }

@@ -2,16 +2,20 @@
 
 use crate::balance::{self, curves::Curve};
 use crate::config::{Config, PinConfig, Precision, StealConfig, Strategy};
+use crate::domain::DomainSpec;
 use crate::error::{io_err, Error, Result};
-use crate::io::series::Series;
-use crate::io::summary::{BalanceSummary, Checksums, PartsSeconds, Summary, WorkSummary};
+use crate::io::series::{ParticleRow, ParticleSeries, Series};
+use crate::io::summary::{BalanceSummary, Checksums, ParticleSummary, PartsSeconds, Summary, WorkSummary};
 use crate::io::vtk::{VtkPiece, VtkSeries};
+use crate::particles::Particles;
 use crate::pipeline::Pipeline;
 use crate::scenes::{self, FluidView, Scene};
 use crate::sim::Simulation;
+use blockflow_kernels::rigid::RigidParams;
 use blockflow_kernels::Real;
 use blockflow_scheduler::executor::{Executor, PoolConfig, Steal};
 use blockflow_scheduler::topology::{placement, PinPolicy, Topology};
+use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -40,6 +44,9 @@ impl<T: Real> FluidView for Simulation<T> {
     }
     fn steps_taken(&self) -> u64 {
         self.step
+    }
+    fn bodies(&self) -> Vec<blockflow_kernels::rigid::Body> {
+        self.particles.as_ref().map_or_else(Vec::new, |p| p.bodies(self.step))
     }
 }
 
@@ -73,14 +80,19 @@ pub fn run(cfg: &Config, opts: &RunOptions) -> Result<Summary> {
 /// Builds the simulation of a scene (domain resolved, blocks built, initial state set).
 pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> {
     let domain = scenes::domain_for(&cfg.domain, scene)?;
+    let mut geometry = scene.geometry.clone();
+    geometry.no_fluid |= !cfg.fluid.enabled;
     let mut sim = Simulation::<T>::new(
         domain,
-        &scene.geometry,
+        &geometry,
         scene.params,
         cfg.fluid.velocity_limit,
         cfg.fluid.kernel,
     );
-    if sim.fluid_cells() == 0 {
+    if let Some(ps) = &scene.particles {
+        sim.particles = Some(build_particles(cfg, ps, domain)?);
+    }
+    if sim.fluid_cells() == 0 && !geometry.no_fluid {
         return Err(Error::Config(format!(
             "scene {}: the geometry leaves no fluid cell in the {:?}-cell domain; check the walls and planes \
              (scene.planes) and the domain size",
@@ -90,6 +102,51 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
     }
     sim.init(&scene.init);
     Ok(sim)
+}
+
+/// The rigid bodies of a scene on the block grid, with `[particles]` applied over the scene's defaults.
+pub fn build_particles(cfg: &Config, ps: &scenes::ParticleScene, domain: DomainSpec) -> Result<Particles> {
+    let c = &cfg.particles;
+    if cfg.fluid.enabled && c.dt.is_some_and(|dt| dt != 1.0) {
+        return Err(Error::Config(
+            "particles.dt: with the fluid on the step is the lattice time unit; remove the key".into(),
+        ));
+    }
+    let params = RigidParams {
+        gravity: DVec3::from(c.gravity.unwrap_or(ps.gravity)),
+        fluid_density: if cfg.fluid.enabled { 1.0 } else { 0.0 },
+        restitution: c.restitution,
+        friction: c.friction,
+        iterations: c.iterations,
+        relaxation: c.relaxation,
+        grid_threshold: c.grid_threshold,
+        contact_margin: c.contact_margin,
+        restitution_threshold: c.restitution_threshold.unwrap_or(ps.restitution_threshold),
+        position_correction: c.position_correction,
+    };
+    Particles::new(
+        domain,
+        ps.bodies.clone(),
+        ps.planes.clone(),
+        params,
+        c.subcycles,
+        c.dt.unwrap_or(ps.dt),
+    )
+}
+
+fn particle_row<T: Real>(sim: &Simulation<T>) -> Option<ParticleRow> {
+    let p = sim.particles.as_ref()?;
+    let b = p.bodies(sim.step);
+    let (contacts, pen) = p.last_contacts();
+    Some(ParticleRow {
+        step: sim.step,
+        time: sim.step as f64 * p.dt,
+        bodies: b.len(),
+        kinetic_energy: b.iter().map(|x| x.kinetic_energy()).sum(),
+        max_speed: b.iter().map(|x| x.velocity.length()).fold(0.0, f64::max),
+        contacts,
+        max_penetration: pen,
+    })
 }
 
 fn write_summary(dir: &Path, s: &Summary) -> Result<()> {
@@ -172,13 +229,19 @@ pub fn make_executor(cfg: &Config) -> Result<Executor> {
 }
 
 /// Owner process of every block: curve order (`balance.strategy`; `none` is the static Hilbert split),
-/// greedy prefix split by fluid-cell count.
+/// greedy prefix split by fluid-cell count (cell count in scenes without fluid).
 pub fn assignment<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Vec<u32> {
     let curve = match cfg.balance.strategy {
         Strategy::None | Strategy::Hilbert => Curve::Hilbert,
         Strategy::Morton => Curve::Morton,
     };
-    let weights: Vec<f64> = sim.blocks.iter().map(|b| b.fluid_cells as f64).collect();
+    // Without fluid (dry rigid-body scenes) every block weighs its cell count.
+    let dry = sim.fluid_cells() == 0;
+    let weights: Vec<f64> = sim
+        .blocks
+        .iter()
+        .map(|b| if dry { b.layout.interior_cells() } else { b.fluid_cells } as f64)
+        .collect();
     balance::assign(sim.domain.blocks, &weights, cfg.processes.count, curve)
 }
 
@@ -257,6 +320,14 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
     let mut series = Series::create(&dir.join("series.csv"))?;
     series.push(0, &sim.diagnostics())?;
+    let mut pseries = match particle_row(&sim) {
+        Some(row) => {
+            let mut ps = ParticleSeries::create(&dir.join("particles.csv"))?;
+            ps.push(&row)?;
+            Some(ps)
+        }
+        None => None,
+    };
     let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
     let mut vtk = match vtk_every {
         Some(_) => {
@@ -293,6 +364,10 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         cores: pipe.executor().cores().to_vec(),
         ..Default::default()
     };
+    if let Some(p) = sim.particles.as_mut() {
+        let bodies = p.bodies(0);
+        p.update_active(1, &bodies);
+    }
     let tasks_per_step = pipe.tasks_per_step(&sim);
     let mut loop_time = 0.0;
     let mut failure = None;
@@ -317,6 +392,9 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         let s = sim.step;
         if s % series_every == 0 || s == steps {
             series.push(s, &sim.diagnostics())?;
+            if let (Some(ps), Some(row)) = (pseries.as_mut(), particle_row(&sim)) {
+                ps.push(&row)?;
+            }
         }
         if let (Some(v), Some(every)) = (vtk.as_mut(), vtk_every) {
             if s % every == 0 {
@@ -328,6 +406,9 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     bar.finish_and_clear();
     pipe.close_interval(sim.step);
     series.finish()?;
+    if let Some(ps) = pseries {
+        ps.finish()?;
+    }
     if let Some(path) = &opts.trace {
         pipe.write_trace(path).map_err(|e| io_err(path, e))?;
     }
@@ -344,8 +425,17 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         lbm: t.part_cpu[0],
         boundary: t.part_cpu[1],
         exchange: t.part_cpu[2],
+        rigid_body: sim.particles.as_ref().map(|_| t.part_cpu[3]),
         ..Default::default()
     };
+    summary.particles = sim.particles.as_ref().map(|p| ParticleSummary {
+        bodies: p.bodies(sim.step).len(),
+        subcycles: p.subcycles,
+        substeps: p.counters.substeps,
+        contacts_per_substep: p.counters.contacts as f64 / p.counters.substeps.max(1) as f64,
+        max_penetration: p.counters.max_penetration,
+        active_blocks: p.active.iter().filter(|&&a| a).count(),
+    });
     let owners = pipe.owners();
     let procs = cfg.processes.count;
     let imbalance: Vec<f64> = pipe.intervals.iter().map(|i| i.imbalance).collect();
@@ -386,10 +476,10 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     };
     summary.checksum = Checksums {
         fluid: format!("{:016x}", sim.checksum()),
-        particles: None,
+        particles: sim.particles.as_ref().map(|p| format!("{:016x}", p.checksum(sim.step))),
     };
     if let Some(inst) = failure {
-        let e = Error::Unstable(inst);
+        let e = inst;
         summary.status = "unstable".to_string();
         summary.error = Some(e.to_string());
         write_summary(&dir, &summary)?;

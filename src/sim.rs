@@ -67,6 +67,8 @@ pub struct Simulation<T: Real> {
     pub times: PartTimes,
     /// Work of the last step.
     pub work: StepWork,
+    /// Rigid bodies, if the scene has any.
+    pub particles: Option<crate::particles::Particles>,
 }
 
 impl<T: Real> Simulation<T> {
@@ -90,6 +92,7 @@ impl<T: Real> Simulation<T> {
             kernel,
             times: PartTimes::default(),
             work: StepWork::default(),
+            particles: None,
         }
     }
 

@@ -180,3 +180,39 @@ fn vtk_series_is_written() {
     assert_eq!(pvd.matches("<DataSet").count(), 3, "steps 0, 10, 20: {pvd}");
     assert!(out.join("vtk/step_00000020.vtm").exists());
 }
+
+#[test]
+fn bad_particle_settings_name_their_key() {
+    let gb = configs().join("granular_box.toml");
+    fails_cleanly(&gb, &["--set", "particles.subcycles=0"], &["particles.subcycles"]);
+    fails_cleanly(&gb, &["--set", "particles.restitution=1.5"], &["particles.restitution"]);
+    fails_cleanly(&gb, &["--set", "particles.friction=-1"], &["particles.friction"]);
+    fails_cleanly(&gb, &["--set", "particles.relaxation=2"], &["particles.relaxation"]);
+    fails_cleanly(&gb, &["--set", "particles.subcyles=4"], &["subcyles"]);
+    fails_cleanly(&gb, &["--set", "fluid.enabled=true"], &["fluid.enabled = false"]);
+    fails_cleanly(&gb, &["--set", "scene.count=5000"], &["scene.count", "scene.size"]);
+    fails_cleanly(
+        &gb,
+        &["--set", "domain.blocks=[16,16,32]"],
+        &["domain.block_size", "diameter"],
+    );
+    let inc = configs().join("incline.toml");
+    fails_cleanly(&inc, &["--set", "scene.angle_deg=75"], &["scene.angle_deg"]);
+}
+
+/// A body pushed through a block in one sub-step stops the run: exit 3, the body and sub-step named,
+/// summary.json marked unstable.
+#[test]
+fn runaway_particles_stop_the_run() {
+    let out = tmp("runaway");
+    let (code, err) = run(
+        &configs().join("granular_box.toml"),
+        &["--set", "scene.initial_speed=1000", "--steps", "20"],
+        &out,
+    );
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("body ") && err.contains("sub-step 1 "), "{err}");
+    assert!(!err.contains("panicked"));
+    let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
+    assert!(summary.contains("\"status\": \"unstable\""));
+}

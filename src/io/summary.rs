@@ -135,4 +135,24 @@ pub struct Summary {
     /// Assignment and imbalance.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub balance: Option<BalanceSummary>,
+    /// Rigid bodies (absent without particles).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub particles: Option<ParticleSummary>,
+}
+
+/// The rigid-body part of a run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ParticleSummary {
+    /// Number of bodies.
+    pub bodies: usize,
+    /// Sub-steps per step.
+    pub subcycles: usize,
+    /// Sub-steps taken.
+    pub substeps: u64,
+    /// Owned contacts per sub-step, averaged over the run.
+    pub contacts_per_substep: f64,
+    /// Largest penetration seen in any contact during the run (before resolution).
+    pub max_penetration: f64,
+    /// Blocks with rigid-body tasks at the end.
+    pub active_blocks: usize,
 }

@@ -88,6 +88,7 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         steps: s.steps,
         init: Box::new(move |_| (0.0, u)),
         observe: Box::new(|v| BTreeMap::from([("kinetic_energy".to_string(), kinetic_energy(v))])),
+        particles: None,
         description: format!("box with {} planes, tau = {tau}", s.planes.len()),
     })
 }

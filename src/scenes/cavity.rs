@@ -123,6 +123,7 @@ pub(super) fn build(s: &CavityConfig, cfg: &Config) -> Result<Scene> {
                 ("kinetic_energy".to_string(), kinetic_energy(v)),
             ])
         }),
+        particles: None,
         description: format!(
             "lid-driven cavity N = {n}, Re = {}, U = {u}, tau = {tau:.5}",
             s.reynolds

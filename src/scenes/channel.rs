@@ -72,6 +72,7 @@ pub(super) fn build(s: &ChannelConfig, cfg: &Config) -> Result<Scene> {
         steps: steady_steps(s.resolution, nu),
         init: Box::new(|_| (0.0, [0.0; 3])),
         observe: Box::new(move |v| BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])),
+        particles: None,
         description: format!(
             "Poiseuille channel H = {h}, Re = {}, u_max = {u_max:.4}, tau = {tau}",
             s.reynolds

@@ -6,12 +6,14 @@ mod box_scene;
 mod cavity;
 mod channel;
 mod couette;
+mod granular;
 mod taylor_green;
 
 use crate::config::{Config, DomainConfig};
 use crate::domain::DomainSpec;
 use crate::error::{config_err, Result};
 use crate::geometry::Geometry;
+use blockflow_kernels::rigid::{Body, Plane as RigidPlane};
 use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -20,6 +22,7 @@ pub use box_scene::{BoxConfig, PlaneConfig};
 pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
 pub use couette::CouetteConfig;
+pub use granular::{CollisionConfig, GranularBoxConfig, InclineConfig};
 pub use taylor_green::TaylorGreenConfig;
 
 /// `[scene]`: which scene (`kind`) and its parameters.
@@ -36,6 +39,12 @@ pub enum SceneConfig {
     Cavity(CavityConfig),
     /// A box of fluid with optional walls, planes, body force and initial velocity.
     Box(BoxConfig),
+    /// Dry granular pile: spheres poured into a closed box settle (fluid off).
+    GranularBox(GranularBoxConfig),
+    /// One sphere rolling or sliding down an inclined plane (fluid off).
+    Incline(InclineConfig),
+    /// Head-on and oblique sphere pairs colliding (fluid off).
+    Collision(CollisionConfig),
 }
 
 /// Read access to the fluid for observables: visits (global cell, δρ, u) of every fluid cell.
@@ -44,6 +53,41 @@ pub trait FluidView {
     fn visit(&self, f: &mut dyn FnMut([usize; 3], f64, [f64; 3]));
     /// Steps taken so far (the time in lattice units).
     fn steps_taken(&self) -> u64;
+    /// The rigid bodies, sorted by id (empty without particles).
+    fn bodies(&self) -> Vec<Body> {
+        Vec::new()
+    }
+}
+
+/// The rigid bodies of a scene and what the solver needs from the scene.
+pub struct ParticleScene {
+    /// Initial bodies (ids unique).
+    pub bodies: Vec<Body>,
+    /// Planes bodies collide with (box walls included).
+    pub planes: Vec<RigidPlane>,
+    /// Default gravity (`particles.gravity` overrides).
+    pub gravity: [f64; 3],
+    /// Default restitution threshold (`particles.restitution_threshold` overrides).
+    pub restitution_threshold: f64,
+    /// Default time per step (`particles.dt` overrides; must be 1 with fluid).
+    pub dt: f64,
+}
+
+/// The rigid planes of the walls on the non-periodic faces of a box of `cells` (walls at 0 and L).
+pub fn wall_planes(cells: [usize; 3], periodic: [bool; 3]) -> Vec<RigidPlane> {
+    let mut out = Vec::new();
+    for a in 0..3 {
+        if periodic[a] {
+            continue;
+        }
+        let mut n = glam::DVec3::ZERO;
+        n[a] = 1.0;
+        let mut far = glam::DVec3::ZERO;
+        far[a] = cells[a] as f64;
+        out.push(RigidPlane::through(1000 + 2 * a as u64, glam::DVec3::ZERO, n));
+        out.push(RigidPlane::through(1001 + 2 * a as u64, far, -n));
+    }
+    out
 }
 
 /// Initial state of a cell: (δρ, u) from its global coordinates.
@@ -71,9 +115,14 @@ pub struct Scene {
     pub init: InitFn,
     /// Observables.
     pub observe: ObserveFn,
+    /// Rigid bodies, if the scene has any.
+    pub particles: Option<ParticleScene>,
     /// One line on the physical set-up, for logs and summary.json.
     pub description: String,
 }
+
+/// The scene kinds, for messages.
+pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision";
 
 /// Checks a raw `[scene]` table against the keys of its `kind`, so errors name the full key path
 /// (`scene.resolution: invalid type ...`); serde's tagged enums would only say `scene`.
@@ -97,7 +146,7 @@ pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
         Some(toml::Value::String(k)) => k,
         Some(other) => return Err(format!("scene.kind = {other}: must be a string")),
         None => {
-            return Err("scene.kind: missing; one of channel, couette, taylor_green, cavity, box".into());
+            return Err(format!("scene.kind: missing; one of {KINDS}"));
         }
     };
     let v = toml::Value::Table(t);
@@ -107,9 +156,10 @@ pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
         "taylor_green" => de::<TaylorGreenConfig>(v),
         "cavity" => de::<CavityConfig>(v),
         "box" => de::<BoxConfig>(v),
-        k => Err(format!(
-            "scene.kind = {k:?}: unknown scene; one of channel, couette, taylor_green, cavity, box"
-        )),
+        "granular_box" => de::<GranularBoxConfig>(v),
+        "incline" => de::<InclineConfig>(v),
+        "collision" => de::<CollisionConfig>(v),
+        k => Err(format!("scene.kind = {k:?}: unknown scene; one of {KINDS}")),
     }
 }
 
@@ -121,6 +171,9 @@ pub fn build(cfg: &Config) -> Result<Scene> {
         SceneConfig::TaylorGreen(s) => taylor_green::build(s, cfg),
         SceneConfig::Cavity(s) => cavity::build(s, cfg),
         SceneConfig::Box(s) => box_scene::build(s, cfg),
+        SceneConfig::GranularBox(s) => granular::build_granular_box(s, cfg),
+        SceneConfig::Incline(s) => granular::build_incline(s, cfg),
+        SceneConfig::Collision(s) => granular::build_collision(s, cfg),
     }
 }
 

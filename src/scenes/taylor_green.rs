@@ -86,6 +86,7 @@ pub(super) fn build(s: &TaylorGreenConfig, cfg: &Config) -> Result<Scene> {
                 ("kinetic_energy".to_string(), kinetic_energy(v)),
             ])
         }),
+        particles: None,
         description: format!(
             "Taylor-Green N = {n}, Re = {}, U0 = {u0:.4}, tau = {tau}, {steps} steps",
             s.reynolds

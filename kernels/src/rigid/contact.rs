@@ -1,10 +1,9 @@
 //! Contact detection (lines 1–5 of Algorithm 7): sphere–sphere and sphere–plane, by all pairs below a body
-//! count threshold and by a hash grid (linked cells) above it, as section 3.2.5 describes. Both paths produce
+//! count threshold and by a grid (linked cells) above it, as section 3.2.5 describes. Both paths produce
 //! the identical, deterministically sorted list.
 
 use super::{Body, Plane};
 use glam::DVec3;
-use std::collections::HashMap;
 
 /// One contact between body `a` and either body `b` or plane `plane`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -107,39 +106,135 @@ pub fn detect_all_pairs(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<C
     out
 }
 
-/// Hash-grid (linked-cell) detection, O(N): cells of edge 2 r_max + margin, each body tested against the 27
-/// neighbouring cells; a pair is generated only from its lower-(id, index) body, so exactly once.
+/// Bodies binned into buckets by a counting sort: the bodies of bucket `k` are
+/// `order[start[k]..start[k + 1]]`, in index order.
+struct Bins {
+    start: Vec<usize>,
+    order: Vec<usize>,
+}
+
+impl Bins {
+    fn new(buckets: usize, bucket_of: &[usize]) -> Self {
+        let mut start = vec![0usize; buckets + 1];
+        for &k in bucket_of {
+            start[k + 1] += 1;
+        }
+        for k in 0..buckets {
+            start[k + 1] += start[k];
+        }
+        let mut next = start.clone();
+        let mut order = vec![0; bucket_of.len()];
+        for (i, &k) in bucket_of.iter().enumerate() {
+            order[next[k]] = i;
+            next[k] += 1;
+        }
+        Bins { start, order }
+    }
+    /// Bodies of buckets `first..=last`.
+    fn range(&self, first: usize, last: usize) -> &[usize] {
+        &self.order[self.start[first]..self.start[last + 1]]
+    }
+}
+
+/// Tests body `i` against the candidates `js`: a pair is generated only from its lower-(id, index) body.
+fn pairs_of(bodies: &[Body], i: usize, js: &[usize], margin: f64, out: &mut Vec<Contact>) {
+    let (id, fixed) = (bodies[i].id, bodies[i].fixed);
+    for &j in js {
+        if (bodies[j].id, j) <= (id, i) || (fixed && bodies[j].fixed) {
+            continue;
+        }
+        out.extend(sphere_sphere(bodies, i, j, margin));
+    }
+}
+
+/// Grid (linked-cell) detection, O(N): cells of edge 2 r_max + margin, each body tested against the bodies of
+/// the 27 cells around its own; a pair is generated only from its lower-(id, index) body, so exactly once.
+/// The bodies are binned into cells by a counting sort: over the cells of their bounding box when it has at
+/// most 4 N + 64 cells (the 3 cells of a row of neighbours are then adjacent in the bins), else into 2 N … 4 N
+/// hashed buckets, of which only the bodies in truly neighbouring cells are tested. The same pairs as all
+/// pairs, in the same sorted order.
 pub fn detect_grid(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<Contact> {
     let mut out = Vec::new();
+    let n = bodies.len();
     let rmax = bodies.iter().map(|b| b.radius).fold(0.0, f64::max);
     let h = (2.0 * rmax + margin.max(0.0)).max(f64::MIN_POSITIVE);
-    let cell = |x: DVec3| {
-        (
-            (x.x / h).floor() as i64,
-            (x.y / h).floor() as i64,
-            (x.z / h).floor() as i64,
-        )
-    };
-    let mut grid: HashMap<(i64, i64, i64), Vec<usize>> = HashMap::new();
-    for (i, b) in bodies.iter().enumerate() {
-        grid.entry(cell(b.position)).or_default().push(i);
+    let cells: Vec<[i64; 3]> = bodies
+        .iter()
+        .map(|b| (b.position / h).floor().to_array().map(|c| c as i64))
+        .collect();
+    let (mut lo, mut hi) = ([i64::MAX; 3], [i64::MIN; 3]);
+    for c in &cells {
+        for k in 0..3 {
+            lo[k] = lo[k].min(c[k]);
+            hi[k] = hi[k].max(c[k]);
+        }
     }
-    for i in 0..bodies.len() {
-        let (cx, cy, cz) = cell(bodies[i].position);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(list) = grid.get(&(cx + dx, cy + dy, cz + dz)) else {
-                        continue;
-                    };
-                    for &j in list {
-                        if (bodies[j].id, j) <= (bodies[i].id, i) || (bodies[i].fixed && bodies[j].fixed) {
-                            continue;
-                        }
-                        out.extend(sphere_sphere(bodies, i, j, margin));
+    let extent: [i128; 3] = std::array::from_fn(|k| hi[k] as i128 - lo[k] as i128 + 1);
+    let dense = n > 0
+        && extent
+            .iter()
+            .try_fold(1i128, |p, &e| p.checked_mul(e))
+            .is_some_and(|p| p <= 4 * n as i128 + 64);
+    if dense {
+        let [ex, ey, ez] = extent.map(|e| e as usize);
+        let rel = |c: &[i64; 3]| std::array::from_fn::<usize, 3, _>(|k| (c[k] - lo[k]) as usize);
+        let bucket = |x: usize, y: usize, z: usize| x + ex * (y + ey * z);
+        let bucket_of: Vec<usize> = cells
+            .iter()
+            .map(|c| {
+                let [x, y, z] = rel(c);
+                bucket(x, y, z)
+            })
+            .collect();
+        let bins = Bins::new(ex * ey * ez, &bucket_of);
+        for (i, c) in cells.iter().enumerate() {
+            let [x, y, z] = rel(c);
+            let (x0, x1) = (x.saturating_sub(1), (x + 1).min(ex - 1));
+            for zz in z.saturating_sub(1)..=(z + 1).min(ez - 1) {
+                for yy in y.saturating_sub(1)..=(y + 1).min(ey - 1) {
+                    pairs_of(
+                        bodies,
+                        i,
+                        bins.range(bucket(x0, yy, zz), bucket(x1, yy, zz)),
+                        margin,
+                        &mut out,
+                    );
+                }
+            }
+        }
+    } else if n > 0 {
+        let buckets = (2 * n).next_power_of_two();
+        let hash = |c: [i64; 3]| {
+            let k = (c[0] as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                ^ (c[1] as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+                ^ (c[2] as u64).wrapping_mul(0x1656_67B1_9E37_79F9);
+            ((k ^ (k >> 29)) as usize) & (buckets - 1)
+        };
+        let bucket_of: Vec<usize> = cells.iter().map(|&c| hash(c)).collect();
+        let bins = Bins::new(buckets, &bucket_of);
+        let mut near = Vec::with_capacity(27);
+        let mut js = Vec::new();
+        for (i, &c) in cells.iter().enumerate() {
+            near.clear();
+            for dx in -1..=1i64 {
+                for dy in -1..=1i64 {
+                    for dz in -1..=1i64 {
+                        near.push(hash([
+                            c[0].wrapping_add(dx),
+                            c[1].wrapping_add(dy),
+                            c[2].wrapping_add(dz),
+                        ]));
                     }
                 }
             }
+            near.sort_unstable();
+            near.dedup();
+            js.clear();
+            for &k in &near {
+                let neighbour = |j: &&usize| (0..3).all(|a| cells[**j][a].abs_diff(c[a]) <= 1);
+                js.extend(bins.range(k, k).iter().filter(neighbour));
+            }
+            pairs_of(bodies, i, &js, margin, &mut out);
         }
     }
     plane_contacts(bodies, planes, margin, &mut out);
@@ -147,12 +242,52 @@ pub fn detect_grid(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<Contac
     out
 }
 
-/// Detection: all pairs below `threshold` bodies, hash grid at or above it. Output sorted by
+/// Detection: all pairs below `threshold` bodies, the grid at or above it. Output sorted by
 /// (id a, kind, id b), identical for both paths.
 pub fn detect(bodies: &[Body], planes: &[Plane], margin: f64, threshold: usize) -> Vec<Contact> {
     if bodies.len() < threshold {
         detect_all_pairs(bodies, planes, margin)
     } else {
         detect_grid(bodies, planes, margin)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Spheres of radius 0.1 … 0.3 spread uniformly in a cube of edge `edge`, ids a permutation of indices.
+    fn cloud(n: usize, edge: f64, seed: u64) -> Vec<Body> {
+        let mut s = seed;
+        let mut next = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        (0..n)
+            .map(|i| {
+                let x = DVec3::new(next(), next(), next()) * edge - DVec3::splat(0.5 * edge);
+                let mut b = Body::sphere((i as u64 * 7919) % n as u64, x, 0.1 + 0.2 * next(), 1000.0);
+                b.fixed = i % 5 == 0;
+                b
+            })
+            .collect()
+    }
+
+    #[test]
+    fn dense_and_hashed_bins_match_all_pairs() {
+        let planes = [Plane::through(0, DVec3::splat(-4.0), DVec3::ONE)];
+        // Dense: a compact cloud. Hashed: the same with a few bodies far away, which blows up the bounding box.
+        for far in [false, true] {
+            let mut bodies = cloud(600, 6.0, 3);
+            if far {
+                for b in bodies.iter_mut().take(40) {
+                    b.position = DVec3::new(1e6, -3e7, 5e5) + 0.2 * b.position;
+                }
+            }
+            let a = detect_all_pairs(&bodies, &planes, 0.05);
+            assert!(a.iter().filter(|c| c.b.is_some()).count() > 200);
+            assert_eq!(a, detect_grid(&bodies, &planes, 0.05), "far bodies: {far}");
+        }
+        assert!(detect_grid(&[], &planes, 0.0).is_empty());
     }
 }

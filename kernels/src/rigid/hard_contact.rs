@@ -25,9 +25,15 @@ pub struct SolverStats {
     pub max_penetration: f64,
 }
 
+/// One contact's constraint rows, with the inverse masses and inertias of both bodies cached (zero for
+/// fixed bodies and planes, so the updates need no branches).
 struct Row {
     ra: DVec3,
     rb: DVec3,
+    im_a: f64,
+    ii_a: f64,
+    im_b: f64,
+    ii_b: f64,
     k_n: f64,
     k_t: f64,
     target: f64,
@@ -35,60 +41,111 @@ struct Row {
     lambda_t: DVec3,
 }
 
-fn rel_velocity(bodies: &[Body], c: &Contact, row: &Row) -> DVec3 {
-    let a = &bodies[c.a];
-    let mut u = a.velocity + a.angular_velocity.cross(row.ra);
+/// Translational and angular velocity of a body, the state the solver iterates on.
+#[derive(Clone, Copy)]
+struct Vel {
+    v: DVec3,
+    w: DVec3,
+}
+
+fn rel_velocity(vel: &[Vel], c: &Contact, row: &Row) -> DVec3 {
+    let a = &vel[c.a];
+    let mut u = a.v + a.w.cross(row.ra);
     if let Some(b) = c.b {
-        let b = &bodies[b];
-        u -= b.velocity + b.angular_velocity.cross(row.rb);
+        let b = &vel[b];
+        u -= b.v + b.w.cross(row.rb);
     }
     u
 }
 
-fn apply(bodies: &mut [Body], c: &Contact, row: &Row, j: DVec3) {
-    let a = &mut bodies[c.a];
-    if !a.fixed {
-        a.velocity += j * a.inv_mass();
-        a.angular_velocity += row.ra.cross(j) * a.inv_inertia();
-    }
+fn apply(vel: &mut [Vel], c: &Contact, row: &Row, j: DVec3) {
+    let a = &mut vel[c.a];
+    a.v += j * row.im_a;
+    a.w += row.ra.cross(j) * row.ii_a;
     if let Some(b) = c.b {
-        let b = &mut bodies[b];
-        if !b.fixed {
-            b.velocity -= j * b.inv_mass();
-            b.angular_velocity -= row.rb.cross(j) * b.inv_inertia();
-        }
+        let b = &mut vel[b];
+        b.v -= j * row.im_b;
+        b.w -= row.rb.cross(j) * row.ii_b;
     }
 }
 
 /// Projected Gauss–Seidel over `contacts` (in slice order), `p.iterations` sweeps with relaxation
 /// `p.relaxation`; updates the velocities of `bodies` in place. See the module doc for the constraints.
 pub fn resolve(bodies: &mut [Body], contacts: &[Contact], p: &RigidParams, dt: f64) -> SolverStats {
+    let mut impulses = Vec::new();
+    let (stats, vel) = solve(bodies, contacts, p, dt, &mut impulses);
+    for (b, v) in bodies.iter_mut().zip(&vel) {
+        if !b.fixed {
+            b.velocity = v.v;
+            b.angular_velocity = v.w;
+        }
+    }
+    stats
+}
+
+/// The same solve as [`resolve`], but leaves `bodies` unchanged and returns in `impulses` the total
+/// impulse of every contact (acting on body `a`; body `b` receives its negative). A caller that owns only
+/// some of the contacts applies just those (the block decomposition of `blockflow`'s particles).
+pub fn resolve_impulses(
+    bodies: &[Body],
+    contacts: &[Contact],
+    p: &RigidParams,
+    dt: f64,
+    impulses: &mut Vec<DVec3>,
+) -> SolverStats {
+    solve(bodies, contacts, p, dt, impulses).0
+}
+
+fn solve(
+    bodies: &[Body],
+    contacts: &[Contact],
+    p: &RigidParams,
+    dt: f64,
+    impulses: &mut Vec<DVec3>,
+) -> (SolverStats, Vec<Vel>) {
     let mut stats = SolverStats::default();
+    impulses.clear();
+    if contacts.is_empty() {
+        return (stats, Vec::new());
+    }
+    let mut vel: Vec<Vel> = bodies
+        .iter()
+        .map(|b| Vel {
+            v: b.velocity,
+            w: b.angular_velocity,
+        })
+        .collect();
+    let inv: Vec<(f64, f64)> = bodies.iter().map(|b| (b.inv_mass(), b.inv_inertia())).collect();
     let mut rows: Vec<Row> = contacts
         .iter()
         .map(|c| {
             let a = &bodies[c.a];
             let ra = c.point - a.position;
+            let (im_a, ii_a) = inv[c.a];
             // Effective inverse masses; K_t is isotropic in the tangent plane because r ∥ n for spheres.
-            let mut k_n = a.inv_mass() + a.inv_inertia() * ra.cross(c.normal).length_squared();
-            let mut k_t = a.inv_mass() + a.inv_inertia() * ra.length_squared();
-            let mut rb = DVec3::ZERO;
+            let mut k_n = im_a + ii_a * ra.cross(c.normal).length_squared();
+            let mut k_t = im_a + ii_a * ra.length_squared();
+            let (mut rb, mut im_b, mut ii_b) = (DVec3::ZERO, 0.0, 0.0);
             if let Some(b) = c.b {
-                let b = &bodies[b];
-                rb = c.point - b.position;
-                k_n += b.inv_mass() + b.inv_inertia() * rb.cross(c.normal).length_squared();
-                k_t += b.inv_mass() + b.inv_inertia() * rb.length_squared();
+                rb = c.point - bodies[b].position;
+                (im_b, ii_b) = inv[b];
+                k_n += im_b + ii_b * rb.cross(c.normal).length_squared();
+                k_t += im_b + ii_b * rb.length_squared();
             }
             let mut row = Row {
                 ra,
                 rb,
+                im_a,
+                ii_a,
+                im_b,
+                ii_b,
                 k_n,
                 k_t,
                 target: 0.0,
                 lambda_n: 0.0,
                 lambda_t: DVec3::ZERO,
             };
-            let un0 = rel_velocity(bodies, c, &row).dot(c.normal);
+            let un0 = rel_velocity(&vel, c, &row).dot(c.normal);
             let bias = if c.depth > 0.0 {
                 p.position_correction * c.depth / dt
             } else {
@@ -112,15 +169,16 @@ pub fn resolve(bodies: &mut [Body], contacts: &[Contact], p: &RigidParams, dt: f
                 continue;
             }
             // Normal row: λ_n ← max(0, λ_n + ω (target − u_n) / K_n).
-            let un = rel_velocity(bodies, c, row).dot(c.normal);
+            let u = rel_velocity(&vel, c, row);
+            let un = u.dot(c.normal);
             let new_n = (row.lambda_n + w * (row.target - un) / row.k_n).max(0.0);
             let dn = new_n - row.lambda_n;
             row.lambda_n = new_n;
-            apply(bodies, c, row, c.normal * dn);
             change = change.max(dn.abs());
-            // Friction rows (2-D): λ_t ← clamp_{|λ_t| ≤ μ λ_n}(λ_t − ω u_t / K_t). K_t is isotropic for spheres.
-            let u = rel_velocity(bodies, c, row);
-            let ut = u - c.normal * u.dot(c.normal);
+            // Friction rows (2-D): λ_t ← clamp_{|λ_t| ≤ μ λ_n}(λ_t − ω u_t / K_t). K_t is isotropic for spheres,
+            // and a normal impulse leaves the tangential slip unchanged (r ∥ n), so u_t is taken from the same
+            // u and both impulses are applied together.
+            let ut = u - c.normal * un;
             let mut new_t = row.lambda_t - ut * (w / row.k_t);
             let limit = p.friction * row.lambda_n;
             let len = new_t.length();
@@ -129,11 +187,17 @@ pub fn resolve(bodies: &mut [Body], contacts: &[Contact], p: &RigidParams, dt: f
             }
             let dt_imp = new_t - row.lambda_t;
             row.lambda_t = new_t;
-            apply(bodies, c, row, dt_imp);
+            apply(&mut vel, c, row, c.normal * dn + dt_imp);
             change = change.max(dt_imp.length());
         }
         stats.iterations += 1;
         stats.last_change = change;
     }
-    stats
+    impulses.extend(
+        contacts
+            .iter()
+            .zip(&rows)
+            .map(|(c, r)| c.normal * r.lambda_n + r.lambda_t),
+    );
+    (stats, vel)
 }

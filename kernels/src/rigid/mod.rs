@@ -19,7 +19,7 @@ pub mod integrate;
 
 pub use body::{Body, Plane};
 pub use contact::{detect, detect_all_pairs, detect_grid, Contact};
-pub use hard_contact::{resolve, SolverStats};
+pub use hard_contact::{resolve, resolve_impulses, SolverStats};
 pub use integrate::{apply_forces, integrate, integrate_positions};
 
 use glam::DVec3;
@@ -58,7 +58,7 @@ impl Default for RigidParams {
             friction: 0.3,
             iterations: 20,
             relaxation: 1.0,
-            grid_threshold: 64,
+            grid_threshold: 32,
             contact_margin: 0.0,
             restitution_threshold: 1e-3,
             position_correction: 0.2,

@@ -1,0 +1,179 @@
+//! The two tasks of one rigid-body sub-step g (1-based over the whole run; parity `g % 2`):
+//!
+//! | task | reads | writes |
+//! |---|---|---|
+//! | `rb(b, g)` | `published[(g-1) % 2]` of b and its neighbours | `work` of b |
+//! | `rb_sync(b, g)` | `work` of b and its neighbours | `published[g % 2]` of b |
+//!
+//! `rb(b, g)`: gather the locals (bodies whose home is b) and shadows (bodies within the halo) from the
+//! published lists, apply gravity, buoyancy and the held external force and torque (to shadows too, so
+//! every copy of a body carries the same velocity), detect contacts, resolve all of them by projected
+//! Gauss–Seidel (Algorithm 7), and record the velocity changes that the impulses of the contacts b owns
+//! give their bodies (locals and shadows).
+//! `rb_sync(b, g)`: add every neighbour's changes (b's own included) to the locals in ascending block-id
+//! order, integrate positions and orientations (semi-implicit Euler), wrap periodic positions, publish.
+//!
+//! Edges (symmetric neighbourhoods make these enough): `rb_sync(n, g-1) → rb(b, g)` and
+//! `rb(n, g) → rb_sync(b, g)` for every neighbour n of b (b included). Write-after-read follows by
+//! transitivity: `rb(n, g+1)` overwrites the `work` that `rb_sync(b, g)` read, and it waits for
+//! `rb_sync(b, g)`; `rb_sync(b, g+2)` overwrites the list `rb(n, g+1)` read, and it waits for
+//! `rb(b, g+2)`, which waits for `rb_sync(n, g+1)`, which waits for `rb(n, g+1)`.
+
+use super::{dist_to_box, Delta, Particles};
+use blockflow_kernels::rigid::{apply_forces, detect, integrate_positions, resolve_impulses};
+
+impl Particles {
+    /// Task `rb(b, g)`; see the module docs.
+    ///
+    /// # Safety
+    /// Must run ordered by the edges of the module docs against the other rigid-body tasks.
+    pub unsafe fn rb(&self, b: usize, g: u64) {
+        let prev = ((g - 1) % 2) as usize;
+        let blk = &self.blocks[b];
+        let w = &mut *blk.work.get();
+        w.bodies.clear();
+        w.deltas.clear();
+        for &n in &blk.near {
+            let pb = self.blocks[n].published(prev);
+            for (body, &h) in pb.bodies.iter().zip(&pb.homes) {
+                if h as usize == b {
+                    w.bodies.push(*body);
+                }
+            }
+        }
+        w.bodies.sort_unstable_by_key(|x| x.id);
+        w.locals = w.bodies.len();
+        let mut shadows = Vec::new();
+        for (k, nb) in blk.neighbours.iter().enumerate() {
+            let pb = self.blocks[nb.block].published(prev);
+            for (body, &h) in pb.bodies.iter().zip(&pb.homes) {
+                if nb.shift == glam::DVec3::ZERO && h as usize == b {
+                    continue;
+                }
+                let mut c = *body;
+                c.position += nb.shift;
+                if dist_to_box(c.position, blk.lo, blk.hi) <= c.radius + self.halo {
+                    shadows.push((c.id, k, c));
+                }
+            }
+        }
+        shadows.sort_unstable_by_key(|s| (s.0, s.1));
+        w.bodies.extend(shadows.into_iter().map(|s| s.2));
+        let dt = self.dt_sub();
+        apply_forces(&mut w.bodies, &self.params, dt);
+        w.contacts = 0;
+        w.max_penetration = 0.0;
+        if w.bodies.is_empty() {
+            return;
+        }
+        let p = &self.params;
+        let mut contacts = detect(&w.bodies, &blk.planes, p.contact_margin, p.grid_threshold);
+        let bodies = &w.bodies;
+        // A body never touches its own periodic image.
+        contacts.retain(|c| c.b.is_none_or(|o| bodies[o].id != bodies[c.a].id));
+        // Solve every contact the block sees (its own and, as context, those among its shadows), so the
+        // impulses of the owned ones account for the load the neighbourhood puts on them.
+        let mut impulses = Vec::new();
+        resolve_impulses(&w.bodies, &contacts, p, dt, &mut impulses);
+        let locals = w.locals;
+        let n = w.bodies.len();
+        let mut dv = vec![glam::DVec3::ZERO; n];
+        let mut dw = vec![glam::DVec3::ZERO; n];
+        let mut touched = vec![false; n];
+        for (c, j) in contacts.iter().zip(&impulses) {
+            // Owned: the lower-id body (a) or the sphere of a plane contact is local.
+            if c.a >= locals {
+                continue;
+            }
+            w.contacts += 1;
+            w.max_penetration = w.max_penetration.max(c.depth);
+            let a = &w.bodies[c.a];
+            if !a.fixed {
+                dv[c.a] += *j * a.inv_mass();
+                dw[c.a] += (c.point - a.position).cross(*j) * a.inv_inertia();
+                touched[c.a] = true;
+            }
+            if let Some(o) = c.b {
+                let b = &w.bodies[o];
+                if !b.fixed {
+                    dv[o] -= *j * b.inv_mass();
+                    dw[o] -= (c.point - b.position).cross(*j) * b.inv_inertia();
+                    touched[o] = true;
+                }
+            }
+        }
+        w.contacts_total += w.contacts as u64;
+        w.max_penetration_total = w.max_penetration_total.max(w.max_penetration);
+        // Velocity changes by body id (slots are sorted by id; periodic images of one body merged).
+        let mut order: Vec<usize> = (0..n).filter(|&i| touched[i]).collect();
+        order.sort_by_key(|&i| (w.bodies[i].id, i));
+        for i in order {
+            let d = Delta {
+                id: w.bodies[i].id,
+                dv: dv[i],
+                dw: dw[i],
+            };
+            match w.deltas.last_mut() {
+                Some(last) if last.id == d.id => {
+                    last.dv += d.dv;
+                    last.dw += d.dw;
+                }
+                _ => w.deltas.push(d),
+            }
+        }
+    }
+
+    /// Task `rb_sync(b, g)`; see the module docs.
+    ///
+    /// # Safety
+    /// Must run ordered by the edges of the module docs against the other rigid-body tasks.
+    pub unsafe fn rb_sync(&self, b: usize, g: u64) {
+        let blk = &self.blocks[b];
+        let w = &*blk.work.get();
+        let out = &mut *blk.published[(g % 2) as usize].get();
+        out.bodies.clear();
+        out.homes.clear();
+        let dt = self.dt_sub();
+        for body in &w.bodies[..w.locals] {
+            let mut x = *body;
+            for &m in &blk.near {
+                let wm = &*self.blocks[m].work.get();
+                if let Ok(k) = wm.deltas.binary_search_by_key(&x.id, |d| d.id) {
+                    x.velocity += wm.deltas[k].dv;
+                    x.angular_velocity += wm.deltas[k].dw;
+                }
+            }
+            let old = x.position;
+            integrate_positions(std::slice::from_mut(&mut x), dt);
+            let moved = (x.position - old).length();
+            x.position = self.wrap(x.position);
+            let home = self.home(x.position);
+            if moved.is_nan() || moved > self.max_move || !x.position.is_finite() {
+                self.fail(
+                    g,
+                    b,
+                    format!(
+                        "particles unstable at sub-step {g} (step {}): body {} in block {b} moved {moved:.3e} cells in \
+                         one sub-step (at most {:.3e} allowed by the block size); raise particles.subcycles, lower \
+                         the time step or the forces",
+                        (g - 1) / self.subcycles as u64 + 1,
+                        x.id,
+                        self.max_move
+                    ),
+                );
+            } else if !self.active[home] {
+                self.fail(
+                    g,
+                    b,
+                    format!(
+                        "body {} left the blocks that have rigid-body tasks (from block {b} into block {home}) at \
+                         sub-step {g}; lower processes.steps_per_graph",
+                        x.id
+                    ),
+                );
+            }
+            out.bodies.push(x);
+            out.homes.push(home as u32);
+        }
+    }
+}
