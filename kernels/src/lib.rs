@@ -6,6 +6,7 @@
 //! Nothing here knows about threads.
 
 pub mod bounce_back;
+pub mod coupling;
 pub mod d3q19;
 pub mod field;
 pub mod real;
