@@ -52,6 +52,9 @@ pub struct Block<T: Real> {
     pub near_boundary_cells: usize,
     /// Whether every interior cell is fluid (then segments are whole rows).
     pub obstacle_free: bool,
+    /// Cells covered by particles, their links and forces (absent without particles in the fluid).
+    /// Rebuilt by the `map` task, read by the boundary and sweep tasks (ordered by the graph).
+    particles: UnsafeCell<Option<crate::coupling::ParticleCells>>,
 }
 
 impl<T: Real> Block<T> {
@@ -183,7 +186,37 @@ impl<T: Real> Block<T> {
             fluid_cells,
             near_boundary_cells: near,
             obstacle_free,
+            particles: UnsafeCell::new(None),
         }
+    }
+
+    /// The particle overlay, if particles are mapped into this block's fluid.
+    pub fn particle_cells(&self) -> Option<&crate::coupling::ParticleCells> {
+        // SAFETY: a shared view; the overlay is written only by this block's map and boundary tasks,
+        // which the graph orders against every reader.
+        unsafe { (*self.particles.get()).as_ref() }
+    }
+
+    /// The particle overlay for writing (created on first use).
+    ///
+    /// # Safety
+    /// No other reference to the overlay may be alive until the returned one is dropped.
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn particle_cells_mut(&self) -> &mut crate::coupling::ParticleCells {
+        (*self.particles.get()).get_or_insert_with(Default::default)
+    }
+
+    /// Runs of interior cells that are fluid now: the static segments, minus cells covered by particles.
+    pub fn fluid_segments(&self) -> &[Segment] {
+        match self.particle_cells() {
+            Some(pc) => &pc.segments,
+            None => &self.segments,
+        }
+    }
+
+    /// Interior fluid cells now (static fluid cells not covered by a particle).
+    pub fn current_fluid_cells(&self) -> usize {
+        self.particle_cells().map_or(self.fluid_cells, |pc| pc.fluid_cells)
     }
 
     /// Field `p` (0 or 1) for reading. Callers must not hold it across a concurrent writer of the same
@@ -228,7 +261,7 @@ impl<T: Real> Block<T> {
     /// Calls `visit(global cell, element index)` for every interior fluid cell, in x-fastest order.
     pub fn for_each_fluid(&self, mut visit: impl FnMut([usize; 3], usize)) {
         let l = self.layout;
-        for s in &self.segments {
+        for s in self.fluid_segments() {
             let [x0, y, z] = l.coords(s.start);
             for x in x0..x0 + s.len {
                 visit(

@@ -68,6 +68,10 @@ pub struct ParticlesConfig {
     /// Time per step for scenes without fluid (with fluid the step is the lattice time unit, 1); absent:
     /// the scene's default.
     pub dt: Option<f64>,
+    /// Boundary condition at particle surfaces: `"cli"` (default; eq. 6 with the ray–sphere δ_q, simple
+    /// bounce-back where the second fluid cell is missing) or `"sbb"` (simple bounce-back).
+    #[serde(default)]
+    pub boundary: crate::coupling::SurfaceBoundary,
 }
 
 fn d_subcycles() -> usize {
@@ -106,6 +110,7 @@ impl Default for ParticlesConfig {
             restitution_threshold: None,
             gravity: None,
             dt: None,
+            boundary: Default::default(),
         }
     }
 }

@@ -117,10 +117,10 @@ pub unsafe fn stream_collide<T: Real>(b: &Block<T>, p: usize, params: &TrtParams
     let src = b.field(p);
     let dst = b.field_mut(1 - p);
     match kernel {
-        KernelChoice::Fused => sweep::stream_collide(src, dst, &b.segments, params),
+        KernelChoice::Fused => sweep::stream_collide(src, dst, b.fluid_segments(), params),
         KernelChoice::Split => {
-            sweep::stream(src, dst, &b.segments);
-            sweep::collide(dst, &b.segments, params)
+            sweep::stream(src, dst, b.fluid_segments());
+            sweep::collide(dst, b.fluid_segments(), params)
         }
     }
 }

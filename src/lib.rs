@@ -12,6 +12,7 @@ pub mod bench_scheduler;
 pub mod block;
 pub mod cli;
 pub mod config;
+pub mod coupling;
 pub mod domain;
 pub mod error;
 pub mod fluid;

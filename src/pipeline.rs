@@ -27,6 +27,7 @@
 
 use crate::block::Block;
 use crate::config::KernelChoice;
+use crate::coupling::{self, SurfaceBoundary};
 use crate::error::{Error, Instability};
 use crate::fluid;
 use crate::particles::Particles;
@@ -41,12 +42,15 @@ use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
-/// Part labels of the tasks (index = `TaskSpec::part`).
-pub const PARTS: [&str; 4] = ["lbm", "boundary", "exchange", "rigid_body"];
+/// Part labels of the tasks (index = `TaskSpec::part`): the parts of Algorithm 1 (LBM, boundary
+/// handling, mapping = Coup1, reconstruction = Coup2, rigid body) plus communication.
+pub const PARTS: [&str; 6] = ["lbm", "boundary", "exchange", "rigid_body", "map", "reconstruct"];
 const PART_LBM: u8 = 0;
 const PART_BOUNDARY: u8 = 1;
 const PART_EXCHANGE: u8 = 2;
 const PART_RB: u8 = 3;
+const PART_MAP: u8 = 4;
+const PART_RECON: u8 = 5;
 
 const KIND_SEND: u32 = 0;
 const KIND_COMM: u32 = 1;
@@ -54,20 +58,23 @@ const KIND_BOUNDARY: u32 = 2;
 const KIND_SWEEP: u32 = 3;
 const KIND_RB: u32 = 4;
 const KIND_RB_SYNC: u32 = 5;
+const KIND_MAP: u32 = 6;
+const KIND_RECON: u32 = 7;
+const KIND_FORCES: u32 = 8;
 
-/// Task payload: bits 0–2 the kind, 3–10 the rigid-body sub-step inside the step, 11– the step inside
+/// Task payload: bits 0–3 the kind, 4–11 the rigid-body sub-step inside the step, 12– the step inside
 /// the graph run.
 fn payload(k: usize, kind: u32) -> u32 {
-    ((k as u32) << 11) | kind
+    ((k as u32) << 12) | kind
 }
 
 fn payload_sub(k: usize, sub: usize, kind: u32) -> u32 {
-    ((k as u32) << 11) | ((sub as u32) << 3) | kind
+    ((k as u32) << 12) | ((sub as u32) << 4) | kind
 }
 
 /// Step of a task inside its graph run.
 fn step_of(payload: u32) -> usize {
-    (payload >> 11) as usize
+    (payload >> 12) as usize
 }
 
 /// A remote message: which receiver and ghost region a slot feeds.
@@ -101,7 +108,7 @@ pub struct IntervalStats {
 #[derive(Clone, Debug, Default)]
 pub struct PipelineTotals {
     /// CPU seconds per part (index as [`PARTS`]).
-    pub part_cpu: [f64; 4],
+    pub part_cpu: [f64; 6],
     /// Tasks executed.
     pub tasks: u64,
     /// Cross-process message bytes.
@@ -134,6 +141,8 @@ pub struct Pipeline<T: Real> {
     trace_offset_ns: u64,
     /// First step of every traced run, so trace events carry absolute step numbers.
     trace_bases: std::sync::Arc<Mutex<Vec<u64>>>,
+    /// Boundary condition at particle surfaces.
+    pub surface: SurfaceBoundary,
     _marker: std::marker::PhantomData<T>,
 }
 
@@ -180,6 +189,7 @@ impl<T: Real> Pipeline<T> {
             trace: None,
             trace_offset_ns: 0,
             trace_bases: Default::default(),
+            surface: SurfaceBoundary::Cli,
             _marker: std::marker::PhantomData,
         }
     }
@@ -246,9 +256,22 @@ impl<T: Real> Pipeline<T> {
         let outgoing = &self.outgoing;
         self.graphs.entry(k).or_insert_with(|| {
             let mut g = GraphBuilder::new();
-            add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k);
-            if let Some(parts) = &sim.particles {
-                add_rigid_tasks(&mut g, parts, owners, k);
+            let coupled = sim.particles.is_some() && sim.blocks.iter().any(|b| b.particle_cells().is_some());
+            let moving = sim.particles.as_ref().is_some_and(|p| p.has_moving());
+            // Blocks whose fluid touches particles always get a boundary task.
+            let force_boundary: Vec<bool> = sim
+                .blocks
+                .iter()
+                .map(|b| {
+                    b.fluid_cells > 0
+                        && b.particle_cells().is_some()
+                        && (moving && sim.particles.as_ref().is_some_and(|p| p.active[b.id])
+                            || b.particle_cells().is_some_and(|pc| !pc.links.is_empty()))
+                })
+                .collect();
+            let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary);
+            if let (Some(parts), true) = (&sim.particles, moving) {
+                add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled);
             }
             g.build().expect("the step graph is acyclic")
         })
@@ -313,24 +336,44 @@ impl<T: Real> Pipeline<T> {
         let outgoing = &self.outgoing;
         let stats = &self.stats;
         let parts = sim.particles.as_ref();
+        let surface = self.surface;
+        let domain = sim.domain;
         let t0 = Instant::now();
         let run = self.exec.run(&graph, |_t: TaskId, spec: &TaskSpec, _w| {
             let b = &blocks[spec.block as usize];
             let kk = step_of(spec.payload);
             let p = ((base + kk as u64) % 2) as usize;
-            match spec.payload & 7 {
+            match spec.payload & 15 {
                 KIND_RB | KIND_RB_SYNC => {
                     let parts = parts.expect("rigid-body tasks only exist with particles");
                     let s = parts.subcycles as u64;
-                    let g = (base + kk as u64) * s + ((spec.payload >> 3) & 0xff) as u64 + 1;
+                    let g = (base + kk as u64) * s + ((spec.payload >> 4) & 0xff) as u64 + 1;
                     // SAFETY: the graph carries the edges of `particles::tasks`.
                     unsafe {
-                        if spec.payload & 7 == KIND_RB {
+                        if spec.payload & 15 == KIND_RB {
                             parts.rb(b.id, g)
                         } else {
                             parts.rb_sync(b.id, g)
                         }
                     }
+                }
+                KIND_MAP => {
+                    let parts = parts.expect("map tasks only exist with particles");
+                    // SAFETY: the graph carries the edges of `coupling::tasks`.
+                    unsafe { coupling::tasks::map_task(parts, b, base + kk as u64, surface) }
+                }
+                KIND_RECON => {
+                    // SAFETY: as above; reconstruct writes b's field p before anyone reads it this step.
+                    unsafe {
+                        if let Some(pc) = b.particle_cells() {
+                            coupling::reconstruct(&domain, b, pc, p, &params)
+                        }
+                    }
+                }
+                KIND_FORCES => {
+                    let parts = parts.expect("forces tasks only exist with particles");
+                    // SAFETY: as above.
+                    unsafe { coupling::tasks::forces_task(parts, blocks, b.id, base + kk as u64) }
                 }
                 KIND_SEND => {
                     for o in &outgoing[b.id] {
@@ -347,7 +390,13 @@ impl<T: Real> Pipeline<T> {
                         }
                     }
                 }
-                KIND_BOUNDARY => fluid::boundary(b, p),
+                KIND_BOUNDARY => {
+                    fluid::boundary(b, p);
+                    if b.particle_cells().is_some() {
+                        // SAFETY: the boundary task is the only user of b's overlay and particle cells now.
+                        unsafe { coupling::boundary(b, b.particle_cells_mut(), p) }
+                    }
+                }
                 _ => {
                     // SAFETY: the graph orders every task touching field 1 - p of this block or writing
                     // field p around this sweep (module docs).
@@ -430,40 +479,98 @@ fn region_cells<T: Real>(b: &Block<T>, off: [i32; 3]) -> usize {
     (0..3).map(|a| if off[a] == 0 { b.layout.size[a] } else { 1 }).product()
 }
 
-/// Adds the rigid-body tasks of `k` consecutive steps: `rb(b, g)` and `rb_sync(b, g)` for every active
-/// block and sub-step, with the edges documented in [`crate::particles::tasks`].
-fn add_rigid_tasks(g: &mut GraphBuilder, parts: &Particles, owners: &[u32], k: usize) {
+/// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
+/// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
+/// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps. Edges as documented in
+/// [`crate::particles::tasks`] and [`crate::coupling::tasks`].
+fn add_particle_tasks<T: Real>(
+    g: &mut GraphBuilder,
+    parts: &Particles,
+    blocks: &[Block<T>],
+    owners: &[u32],
+    k: usize,
+    fluid: &[Ids],
+    coupled: bool,
+) {
     let nb = parts.blocks.len();
     let s = parts.subcycles;
     let active: Vec<usize> = (0..nb).filter(|&b| parts.active[b]).collect();
+    let spec = |b: usize, part: u8, payload: u32| TaskSpec {
+        owner: owners[b],
+        part,
+        block: b as u32,
+        payload,
+    };
+    // Receivers of each block's interior layers inside the same process (their comm reads it directly).
+    let mut local_receivers: Vec<Vec<usize>> = vec![Vec::new(); nb];
+    for blk in blocks {
+        for r in &blk.recv {
+            if owners[r.from] == owners[blk.id] && r.from != blk.id {
+                local_receivers[r.from].push(blk.id);
+            }
+        }
+    }
     let mut sync: Vec<Option<TaskId>> = vec![None; nb];
     for kk in 0..k {
+        let mut forces: Vec<Option<TaskId>> = vec![None; nb];
+        if coupled {
+            let mut maps: Vec<Option<TaskId>> = vec![None; nb];
+            for &b in active.iter().filter(|&&b| blocks[b].fluid_cells > 0) {
+                let m = g.add(spec(b, PART_MAP, payload(kk, KIND_MAP)));
+                let r = g.add(spec(b, PART_RECON, payload(kk, KIND_RECON)));
+                g.edge(m, r);
+                for &n in &parts.blocks[b].near {
+                    if let Some(sp) = sync[n] {
+                        g.edge(sp, m);
+                    }
+                }
+                if kk > 0 {
+                    if let Some(sw) = fluid[(kk - 1) * nb + b].sweep {
+                        g.edge(sw, m);
+                    }
+                }
+                let f = &fluid[kk * nb + b];
+                if let Some(first) = f.comm.or(f.boundary).or(f.sweep) {
+                    g.edge(r, first);
+                }
+                if let Some(sd) = f.send {
+                    g.edge(r, sd);
+                }
+                for &n in &local_receivers[b] {
+                    if let Some(c) = fluid[kk * nb + n].comm {
+                        g.edge(r, c);
+                    }
+                }
+                maps[b] = Some(m);
+            }
+            for &b in &active {
+                let fo = g.add(spec(b, PART_RB, payload(kk, KIND_FORCES)));
+                for &n in &parts.blocks[b].near {
+                    if let Some(x) = fluid[kk * nb + n].boundary.or(maps[n]) {
+                        g.edge(x, fo);
+                    }
+                }
+                if let Some(sp) = sync[b] {
+                    g.edge(sp, fo);
+                }
+                forces[b] = Some(fo);
+            }
+        }
         for sub in 0..s {
             let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
             let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
             for &b in &active {
-                let spec = |kind| TaskSpec {
-                    owner: owners[b],
-                    part: PART_RB,
-                    block: b as u32,
-                    payload: payload_sub(kk, sub, kind),
-                };
-                new_rb[b] = Some(g.add(spec(KIND_RB)));
+                new_rb[b] = Some(g.add(spec(b, PART_RB, payload_sub(kk, sub, KIND_RB))));
             }
             for &b in &active {
-                let spec = TaskSpec {
-                    owner: owners[b],
-                    part: PART_RB,
-                    block: b as u32,
-                    payload: payload_sub(kk, sub, KIND_RB_SYNC),
-                };
-                new_sync[b] = Some(g.add(spec));
+                new_sync[b] = Some(g.add(spec(b, PART_RB, payload_sub(kk, sub, KIND_RB_SYNC))));
             }
             for &b in &active {
                 let me_rb = new_rb[b].expect("active");
                 let me_sync = new_sync[b].expect("active");
                 for &n in &parts.blocks[b].near {
-                    if let Some(prev) = sync[n] {
+                    let before = if sub == 0 && coupled { forces[n] } else { sync[n] };
+                    if let Some(prev) = before {
                         g.edge(prev, me_rb);
                     }
                     if let Some(r) = new_rb[n] {
@@ -476,6 +583,15 @@ fn add_rigid_tasks(g: &mut GraphBuilder, parts: &Particles, owners: &[u32], k: u
     }
 }
 
+/// Task ids of one block and step.
+#[derive(Clone, Copy, Default)]
+struct Ids {
+    send: Option<TaskId>,
+    comm: Option<TaskId>,
+    boundary: Option<TaskId>,
+    sweep: Option<TaskId>,
+}
+
 /// Adds the fluid tasks of `k` consecutive steps (see the module docs for tasks and edges).
 fn add_fluid_tasks<T: Real>(
     g: &mut GraphBuilder,
@@ -483,15 +599,9 @@ fn add_fluid_tasks<T: Real>(
     owners: &[u32],
     outgoing: &[Vec<Outgoing>],
     k: usize,
-) {
+    force_boundary: &[bool],
+) -> Vec<Ids> {
     let nb = blocks.len();
-    #[derive(Clone, Copy, Default)]
-    struct Ids {
-        send: Option<TaskId>,
-        comm: Option<TaskId>,
-        boundary: Option<TaskId>,
-        sweep: Option<TaskId>,
-    }
     let mut ids = vec![Ids::default(); nb * k];
     // Within a step the send tasks get the lowest ids: a worker that finishes a task continues with its
     // lowest-id ready successor, so a block's sweep is followed at once by the message another process
@@ -522,7 +632,7 @@ fn add_fluid_tasks<T: Real>(
             if !b.recv.is_empty() {
                 id.comm = Some(mk(g, PART_EXCHANGE, KIND_COMM));
             }
-            if !b.links.is_empty() {
+            if !b.links.is_empty() || force_boundary[b.id] {
                 id.boundary = Some(mk(g, PART_BOUNDARY, KIND_BOUNDARY));
             }
             id.sweep = Some(mk(g, PART_LBM, KIND_SWEEP));
@@ -572,4 +682,5 @@ fn add_fluid_tasks<T: Real>(
             }
         }
     }
+    ids
 }

@@ -48,6 +48,9 @@ impl<T: Real> FluidView for Simulation<T> {
     fn bodies(&self) -> Vec<blockflow_kernels::rigid::Body> {
         self.particles.as_ref().map_or_else(Vec::new, |p| p.bodies(self.step))
     }
+    fn hydro_forces(&self) -> Vec<crate::coupling::BodyForce> {
+        crate::coupling::tasks::total_forces(&self.blocks)
+    }
 }
 
 /// The output folder a run writes to.
@@ -90,7 +93,11 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
         cfg.fluid.kernel,
     );
     if let Some(ps) = &scene.particles {
-        sim.particles = Some(build_particles(cfg, ps, domain)?);
+        let parts = build_particles(cfg, ps, domain)?;
+        if !geometry.no_fluid {
+            crate::coupling::tasks::map_all(&parts, &sim.blocks, 0, cfg.particles.boundary);
+        }
+        sim.particles = Some(parts);
     }
     if sim.fluid_cells() == 0 && !geometry.no_fluid {
         return Err(Error::Config(format!(
@@ -313,6 +320,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let exec = make_executor(cfg)?;
     let owners = assignment(cfg, &sim);
     let mut pipe = Pipeline::new(&sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
+    pipe.surface = cfg.particles.boundary;
     pipe.first_touch(&sim);
     if opts.trace.is_some() {
         pipe.enable_trace();
@@ -421,11 +429,14 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         0.0
     };
     let t = &pipe.totals;
+    let coupled = sim.blocks.iter().any(|b| b.particle_cells().is_some());
     summary.parts_seconds = PartsSeconds {
         lbm: t.part_cpu[0],
         boundary: t.part_cpu[1],
         exchange: t.part_cpu[2],
         rigid_body: sim.particles.as_ref().map(|_| t.part_cpu[3]),
+        map: coupled.then_some(t.part_cpu[4]),
+        reconstruct: coupled.then_some(t.part_cpu[5]),
         ..Default::default()
     };
     summary.particles = sim.particles.as_ref().map(|p| ParticleSummary {

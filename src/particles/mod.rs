@@ -122,6 +122,16 @@ impl BlockBodies {
         &*self.published[p].get()
     }
 
+    /// The local bodies published after a sub-step of parity `p`, for writing (the `forces` task sets the
+    /// hydrodynamic force and torque in place).
+    ///
+    /// # Safety
+    /// No other task may read or write this list concurrently.
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn published_mut(&self, p: usize) -> &mut Published {
+        &mut *self.published[p].get()
+    }
+
     /// The last `rb` result of this block.
     ///
     /// # Safety
@@ -206,7 +216,15 @@ impl Particles {
         let halo = max_radius + params.contact_margin;
         let min_edge = domain.block_size.iter().copied().min().unwrap_or(1) as f64;
         let max_move = min_edge - 2.0 * max_radius - params.contact_margin;
-        if !bodies.is_empty() && max_move <= 0.0 {
+        let all_fixed = bodies.iter().all(|b| b.fixed);
+        // Fixed bodies only need to be seen by the blocks they reach (radius + ghost layer within a
+        // neighbour); moving ones need room for the contact halo and a sub-step's motion.
+        let too_small = if all_fixed {
+            max_radius + 1.0 >= min_edge
+        } else {
+            max_move <= 0.0
+        };
+        if !bodies.is_empty() && too_small {
             return config_err(format!(
                 "domain.block_size = {:?}: blocks must be larger than a particle diameter plus the contact margin \
                  ({} cells here); use fewer, larger blocks",
@@ -240,6 +258,16 @@ impl Particles {
         }
         parts.blocks = blocks;
         Ok(parts)
+    }
+
+    /// Whether any body can move (fixed bodies alone are mapped once and need no rigid-body tasks).
+    pub fn has_moving(&self) -> bool {
+        self.bodies(0).iter().chain(self.bodies(1).iter()).any(|b| !b.fixed)
+    }
+
+    /// The block decomposition the bodies live on.
+    pub fn domain(&self) -> &DomainSpec {
+        &self.domain
     }
 
     /// Time of one sub-step.

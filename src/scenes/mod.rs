@@ -7,6 +7,7 @@ mod cavity;
 mod channel;
 mod couette;
 mod granular;
+mod particulate;
 mod taylor_green;
 
 use crate::config::{Config, DomainConfig};
@@ -23,6 +24,7 @@ pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
 pub use couette::CouetteConfig;
 pub use granular::{CollisionConfig, GranularBoxConfig, InclineConfig};
+pub use particulate::DragArrayConfig;
 pub use taylor_green::TaylorGreenConfig;
 
 /// `[scene]`: which scene (`kind`) and its parameters.
@@ -45,6 +47,8 @@ pub enum SceneConfig {
     Incline(InclineConfig),
     /// Head-on and oblique sphere pairs colliding (fluid off).
     Collision(CollisionConfig),
+    /// A fixed sphere in a periodic cube driven by a body force: drag of a simple cubic array.
+    DragArray(DragArrayConfig),
 }
 
 /// Read access to the fluid for observables: visits (global cell, δρ, u) of every fluid cell.
@@ -55,6 +59,10 @@ pub trait FluidView {
     fn steps_taken(&self) -> u64;
     /// The rigid bodies, sorted by id (empty without particles).
     fn bodies(&self) -> Vec<Body> {
+        Vec::new()
+    }
+    /// Hydrodynamic force and torque of the last boundary pass per body, sorted by id.
+    fn hydro_forces(&self) -> Vec<crate::coupling::BodyForce> {
         Vec::new()
     }
 }
@@ -122,7 +130,7 @@ pub struct Scene {
 }
 
 /// The scene kinds, for messages.
-pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision";
+pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision, drag_array";
 
 /// Checks a raw `[scene]` table against the keys of its `kind`, so errors name the full key path
 /// (`scene.resolution: invalid type ...`); serde's tagged enums would only say `scene`.
@@ -159,6 +167,7 @@ pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
         "granular_box" => de::<GranularBoxConfig>(v),
         "incline" => de::<InclineConfig>(v),
         "collision" => de::<CollisionConfig>(v),
+        "drag_array" => de::<DragArrayConfig>(v),
         k => Err(format!("scene.kind = {k:?}: unknown scene; one of {KINDS}")),
     }
 }
@@ -174,6 +183,7 @@ pub fn build(cfg: &Config) -> Result<Scene> {
         SceneConfig::GranularBox(s) => granular::build_granular_box(s, cfg),
         SceneConfig::Incline(s) => granular::build_incline(s, cfg),
         SceneConfig::Collision(s) => granular::build_collision(s, cfg),
+        SceneConfig::DragArray(s) => particulate::build_drag_array(s, cfg),
     }
 }
 

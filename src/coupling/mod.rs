@@ -1,0 +1,332 @@
+//! Fluid–particle coupling on a block (section 2.3 of Rettinger & Rüde 2019): mapping of the spheres
+//! into cells (Algorithm 5), the CLI / simple bounce-back boundary of eq. (6) at their surfaces with the
+//! momentum exchange of eqs. (7)–(9), and the reconstruction of cells that turn from solid to fluid
+//! (Algorithm 6). The per-link numerics are the kernels' ([`blockflow_kernels::coupling`]); this module
+//! finds the cells and links of a block and sums the forces per body.
+//!
+//! Geometry is evaluated in a way every block agrees on bit for bit: a cell is addressed by its wrapped
+//! global index, a body by its canonical (wrapped) centre, and their offset is taken as the minimum image
+//! on periodic axes. So a cell in one block's ghost layer is solid exactly when the same cell is solid in
+//! the block that owns it.
+//!
+//! Static geometry (walls, planes) stays in the block's flags, mapped once; particles live in an overlay
+//! ([`ParticleCells`]) that is rebuilt by the `map` task of every step. Fixed bodies alone are mapped
+//! once at set-up.
+
+pub mod tasks;
+
+use crate::block::Block;
+use crate::domain::DomainSpec;
+use crate::geometry::flags;
+use blockflow_kernels::coupling::{
+    cli_link, link_delta, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0,
+};
+use blockflow_kernels::d3q19::{C, OPP, Q};
+use blockflow_kernels::sweep::Segment;
+use blockflow_kernels::trt::{moments, post_collision_equilibrium};
+use blockflow_kernels::{Real, TrtParams};
+use glam::DVec3;
+
+/// Boundary condition at particle surfaces (`particles.boundary`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SurfaceBoundary {
+    /// Central linear interpolation with δ_q from the ray–sphere intersection (eq. 6), simple bounce-back
+    /// where the second fluid cell is missing.
+    #[default]
+    Cli,
+    /// Simple bounce-back (δ_q = 1/2 everywhere).
+    Sbb,
+}
+
+/// What the mapping needs of a body.
+#[derive(Clone, Copy, Debug)]
+pub struct MapBody {
+    /// Body id.
+    pub id: u64,
+    /// Canonical centre X.
+    pub position: DVec3,
+    /// Translational velocity V.
+    pub velocity: DVec3,
+    /// Angular velocity W.
+    pub angular_velocity: DVec3,
+    /// Radius.
+    pub radius: f64,
+}
+
+/// A fluid cell's link into a particle cell.
+#[derive(Clone, Copy, Debug)]
+pub struct ParticleLink {
+    /// Element index of the fluid cell x_f.
+    pub fluid: usize,
+    /// Outgoing direction q (c_q points into the body).
+    pub q: u8,
+    /// Index of the body in [`ParticleCells::bodies`].
+    pub body: u32,
+    /// δ_q in (0, 1] (1/2 for simple bounce-back).
+    pub delta: f64,
+    /// Element index of the second fluid cell x_f − c_q for CLI; `None`: simple bounce-back.
+    pub second: Option<usize>,
+    /// Offset x_f − X of the fluid cell centre from the body centre (minimum image).
+    pub rel: DVec3,
+}
+
+/// Hydrodynamic force and torque the block's links put on one body.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyForce {
+    /// Body id.
+    pub id: u64,
+    /// Force, eq. (8) restricted to this block's links.
+    pub force: DVec3,
+    /// Torque, eq. (9) restricted to this block's links.
+    pub torque: DVec3,
+}
+
+/// The particle overlay of one block.
+#[derive(Clone, Debug, Default)]
+pub struct ParticleCells {
+    /// Id + 1 of the body covering each cell (ghost layer included); 0: none.
+    pub owner: Vec<u64>,
+    /// Runs of interior cells that are fluid now (static fluid and not covered by a body).
+    pub segments: Vec<Segment>,
+    /// Interior fluid cells now.
+    pub fluid_cells: usize,
+    /// Interior fluid cells with at least one particle link (NB of Table 1, particle part).
+    pub near_particle_cells: usize,
+    /// The bodies mapped in this step (locals and shadows), sorted by id.
+    pub bodies: Vec<MapBody>,
+    /// Links from fluid cells into particle cells, in cell order.
+    pub links: Vec<ParticleLink>,
+    /// Interior cells that turned from solid to fluid in this step, with the id of the body that left.
+    pub turned: Vec<(usize, u64)>,
+    /// Forces of the last boundary pass, sorted by id.
+    pub forces: Vec<BodyForce>,
+}
+
+/// Minimum-image offset along one axis.
+#[inline]
+fn min_image(d: f64, len: f64, periodic: bool) -> f64 {
+    if periodic {
+        if d > 0.5 * len {
+            d - len
+        } else if d < -0.5 * len {
+            d + len
+        } else {
+            d
+        }
+    } else {
+        d
+    }
+}
+
+/// Offset of the centre of the cell at full-layout coordinates (x, y, z) of block `b` from `centre`,
+/// computed from the wrapped global cell index (the same bits in every block that holds the cell).
+#[inline]
+pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: DVec3) -> DVec3 {
+    let n = d.cells();
+    let mut out = DVec3::ZERO;
+    for a in 0..3 {
+        let g = origin[a] as i64 + xyz[a] as i64 - 1;
+        let gw = if d.periodic[a] { g.rem_euclid(n[a] as i64) } else { g };
+        out[a] = min_image(gw as f64 + 0.5 - centre[a], n[a] as f64, d.periodic[a]);
+    }
+    out
+}
+
+/// Maps `bodies` (sorted by id, canonical centres) into block `b`'s overlay (Algorithm 5): owners of
+/// every static fluid cell a sphere covers (the higher id wins where two overlap), fluid segments, links
+/// with δ_q and the cells that turned from solid to fluid since the previous mapping.
+pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, mode: SurfaceBoundary) {
+    let l = b.layout;
+    let [fx, fy, fz] = l.full();
+    let n = l.len();
+    let old = std::mem::replace(&mut pc.owner, vec![0u64; n]);
+    let cells = d.cells();
+    for body in &bodies {
+        // Every periodic image whose bounding box meets the block with its ghost layer.
+        let mut ranges = [[(0i64, -1i64); 3]; 3];
+        for a in 0..3 {
+            let shifts: &[f64] = if d.periodic[a] { &[-1.0, 0.0, 1.0] } else { &[0.0] };
+            for (k, s) in shifts.iter().enumerate() {
+                let x = body.position[a] + s * cells[a] as f64;
+                let lo = ((x - body.radius - 0.5).floor() as i64 - b.origin[a] as i64 + 1).max(0);
+                let hi = ((x + body.radius - 0.5).ceil() as i64 - b.origin[a] as i64 + 1).min(l.full()[a] as i64 - 1);
+                ranges[a][k] = (lo, hi);
+            }
+        }
+        let r2 = body.radius * body.radius;
+        for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
+            for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
+                for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
+                    for z in rz.0..=rz.1 {
+                        for y in ry.0..=ry.1 {
+                            for x in rx.0..=rx.1 {
+                                let xyz = [x as usize, y as usize, z as usize];
+                                let i = l.idx(xyz[0], xyz[1], xyz[2]);
+                                if b.flags[i] & flags::FLUID == 0 {
+                                    continue;
+                                }
+                                let off = cell_offset(d, b.origin, xyz, body.position);
+                                if off.length_squared() <= r2 {
+                                    pc.owner[i] = body.id + 1;
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Segments, turned cells and links, scanning the interior once.
+    pc.segments.clear();
+    pc.turned.clear();
+    pc.links.clear();
+    pc.fluid_cells = 0;
+    pc.near_particle_cells = 0;
+    let slot = |id: u64| bodies.binary_search_by_key(&id, |m| m.id).ok();
+    for z in 1..fz - 1 {
+        for y in 1..fy - 1 {
+            let mut run: Option<Segment> = None;
+            for x in 1..fx - 1 {
+                let i = l.idx(x, y, z);
+                let fluid = b.flags[i] & flags::FLUID != 0 && pc.owner[i] == 0;
+                if !fluid {
+                    if let Some(s) = run.take() {
+                        pc.segments.push(s);
+                    }
+                    continue;
+                }
+                pc.fluid_cells += 1;
+                match run.as_mut() {
+                    Some(s) => s.len += 1,
+                    None => run = Some(Segment { start: i, len: 1 }),
+                }
+                if old.len() == n && old[i] != 0 {
+                    pc.turned.push((i, old[i] - 1));
+                }
+                let mut near = false;
+                for q in 1..Q {
+                    let t = (i as isize + l.offset(C[q])) as usize;
+                    let o = pc.owner[t];
+                    if o == 0 {
+                        continue;
+                    }
+                    let Some(k) = slot(o - 1) else { continue };
+                    let body = &bodies[k];
+                    let rel = cell_offset(d, b.origin, [x, y, z], body.position);
+                    let second = (i as isize - l.offset(C[q])) as usize;
+                    let second_fluid = b.flags[second] & flags::FLUID != 0 && pc.owner[second] == 0;
+                    let (delta, second) = match (mode, link_delta(rel, q, DVec3::ZERO, body.radius)) {
+                        (SurfaceBoundary::Cli, Some(dl)) if second_fluid => (dl, Some(second)),
+                        _ => (0.5, None),
+                    };
+                    pc.links.push(ParticleLink {
+                        fluid: i,
+                        q: q as u8,
+                        body: k as u32,
+                        delta,
+                        second,
+                        rel,
+                    });
+                    near = true;
+                }
+                if near {
+                    pc.near_particle_cells += 1;
+                }
+            }
+            if let Some(s) = run.take() {
+                pc.segments.push(s);
+            }
+        }
+    }
+    pc.bodies = bodies;
+}
+
+/// Reconstruction (Algorithm 6) of the cells that turned fluid: the (forced) equilibrium with the
+/// surface velocity of the body that left, V + W × (x − X), and the mean δρ of the cell's interior fluid
+/// neighbours that were fluid before; with no such neighbour, ρ = ρ0 (δρ = 0), the reference density of
+/// the incompressible model.
+///
+/// # Safety
+/// No other task may access field `p` of this block concurrently.
+pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &ParticleCells, p: usize, params: &TrtParams) {
+    if pc.turned.is_empty() {
+        return;
+    }
+    let l = b.layout;
+    let f = b.field_mut(p);
+    let turned: std::collections::HashSet<usize> = pc.turned.iter().map(|t| t.0).collect();
+    let [fx, fy, fz] = l.full();
+    for &(i, id) in &pc.turned {
+        let mut sum = 0.0;
+        let mut count = 0usize;
+        for q in 1..Q {
+            let t = (i as isize + l.offset(C[q])) as usize;
+            let [x, y, z] = l.coords(t);
+            let interior = x >= 1 && y >= 1 && z >= 1 && x < fx - 1 && y < fy - 1 && z < fz - 1;
+            if interior && b.flags[t] & flags::FLUID != 0 && pc.owner[t] == 0 && !turned.contains(&t) {
+                let cell: [T; Q] = f.cell(t);
+                sum += moments(&cell, params.force).0;
+                count += 1;
+            }
+        }
+        let drho = if count > 0 { sum / count as f64 } else { RHO0 - 1.0 };
+        let u = match pc.bodies.binary_search_by_key(&id, |m| m.id) {
+            Ok(k) => {
+                let m = &pc.bodies[k];
+                let rel = cell_offset(d, b.origin, l.coords(i), m.position);
+                surface_velocity(m.velocity, m.angular_velocity, DVec3::ZERO, rel)
+            }
+            Err(_) => DVec3::ZERO,
+        };
+        let eq = post_collision_equilibrium(drho, u.to_array(), params);
+        let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(eq[q]));
+        f.set_cell(i, &cell);
+    }
+}
+
+/// Boundary pass at the particle surfaces on field `p` (eq. 6, CLI or simple bounce-back), writing the
+/// reflected PDFs into the particle cells, and the momentum exchange (eqs. 7–9) summed per body in link
+/// order into `pc.forces`.
+///
+/// # Safety
+/// Writes particle cells and reads fluid cells (ghosts included) of field `p`; no other task may write
+/// them concurrently.
+pub unsafe fn boundary<T: Real>(b: &Block<T>, pc: &mut ParticleCells, p: usize) {
+    let f = b.field(p);
+    let l = b.layout;
+    let data = f.raw();
+    let mut acc = vec![(DVec3::ZERO, DVec3::ZERO); pc.bodies.len()];
+    for link in &pc.links {
+        let q = link.q as usize;
+        let m = &pc.bodies[link.body as usize];
+        let f_out = (*data.add(q * l.stride + link.fluid)).to_f64();
+        let rel_b = link.rel + link.delta * DVec3::new(C[q][0] as f64, C[q][1] as f64, C[q][2] as f64);
+        let v_b = surface_velocity(m.velocity, m.angular_velocity, DVec3::ZERO, rel_b);
+        let f_in = match link.second {
+            Some(s) => {
+                let opp = (*data.add(OPP[q] * l.stride + link.fluid)).to_f64();
+                let sec = (*data.add(q * l.stride + s)).to_f64();
+                cli_link(q, f_out, opp, sec, link.delta, v_b)
+            }
+            None => sbb_link(q, f_out, v_b),
+        };
+        let solid = (link.fluid as isize + l.offset(C[q])) as usize;
+        let stored = T::from_f64(f_in);
+        *data.add(OPP[q] * l.stride + solid) = stored;
+        let force = momentum_exchange(q, f_out, stored.to_f64(), v_b);
+        let e = &mut acc[link.body as usize];
+        e.0 += force;
+        e.1 += link_torque(rel_b, DVec3::ZERO, force);
+    }
+    pc.forces.clear();
+    for (m, (force, torque)) in pc.bodies.iter().zip(acc) {
+        if force != DVec3::ZERO || torque != DVec3::ZERO {
+            pc.forces.push(BodyForce {
+                id: m.id,
+                force,
+                torque,
+            });
+        }
+    }
+}
