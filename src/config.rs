@@ -72,6 +72,10 @@ pub struct ParticlesConfig {
     /// bounce-back where the second fluid cell is missing) or `"sbb"` (simple bounce-back).
     #[serde(default)]
     pub boundary: crate::coupling::SurfaceBoundary,
+    /// Average the hydrodynamic force and torque over the current and the previous step (default on:
+    /// without it, spheres lighter than about twice the fluid's density oscillate and blow up).
+    #[serde(default = "yes")]
+    pub force_averaging: bool,
 }
 
 fn d_subcycles() -> usize {
@@ -111,6 +115,7 @@ impl Default for ParticlesConfig {
             gravity: None,
             dt: None,
             boundary: Default::default(),
+            force_averaging: true,
         }
     }
 }

@@ -143,6 +143,8 @@ pub struct Pipeline<T: Real> {
     trace_bases: std::sync::Arc<Mutex<Vec<u64>>>,
     /// Boundary condition at particle surfaces.
     pub surface: SurfaceBoundary,
+    /// Average the hydrodynamic force over two steps.
+    pub force_averaging: bool,
     _marker: std::marker::PhantomData<T>,
 }
 
@@ -190,6 +192,7 @@ impl<T: Real> Pipeline<T> {
             trace_offset_ns: 0,
             trace_bases: Default::default(),
             surface: SurfaceBoundary::Cli,
+            force_averaging: true,
             _marker: std::marker::PhantomData,
         }
     }
@@ -337,6 +340,7 @@ impl<T: Real> Pipeline<T> {
         let stats = &self.stats;
         let parts = sim.particles.as_ref();
         let surface = self.surface;
+        let force_averaging = self.force_averaging;
         let domain = sim.domain;
         let t0 = Instant::now();
         let run = self.exec.run(&graph, |_t: TaskId, spec: &TaskSpec, _w| {
@@ -373,7 +377,7 @@ impl<T: Real> Pipeline<T> {
                 KIND_FORCES => {
                     let parts = parts.expect("forces tasks only exist with particles");
                     // SAFETY: as above.
-                    unsafe { coupling::tasks::forces_task(parts, blocks, b.id, base + kk as u64) }
+                    unsafe { coupling::tasks::forces_task(parts, blocks, b.id, base + kk as u64, force_averaging) }
                 }
                 KIND_SEND => {
                     for o in &outgoing[b.id] {

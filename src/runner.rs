@@ -53,6 +53,30 @@ impl<T: Real> FluidView for Simulation<T> {
     }
 }
 
+/// The simulation plus what the run recorded over time, as the scenes' observables see it.
+struct RunView<'a, T: Real> {
+    sim: &'a Simulation<T>,
+    trajectory: &'a [(f64, blockflow_kernels::rigid::Body)],
+}
+
+impl<T: Real> FluidView for RunView<'_, T> {
+    fn visit(&self, f: &mut dyn FnMut([usize; 3], f64, [f64; 3])) {
+        self.sim.visit(f)
+    }
+    fn steps_taken(&self) -> u64 {
+        self.sim.step
+    }
+    fn bodies(&self) -> Vec<blockflow_kernels::rigid::Body> {
+        self.sim.bodies()
+    }
+    fn hydro_forces(&self) -> Vec<crate::coupling::BodyForce> {
+        self.sim.hydro_forces()
+    }
+    fn trajectory(&self) -> Vec<(f64, blockflow_kernels::rigid::Body)> {
+        self.trajectory.to_vec()
+    }
+}
+
 /// The output folder a run writes to.
 pub fn output_dir(cfg: &Config, opts: &RunOptions) -> PathBuf {
     if let Some(o) = &opts.out {
@@ -321,6 +345,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let owners = assignment(cfg, &sim);
     let mut pipe = Pipeline::new(&sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
     pipe.surface = cfg.particles.boundary;
+    pipe.force_averaging = cfg.particles.force_averaging;
     pipe.first_touch(&sim);
     if opts.trace.is_some() {
         pipe.enable_trace();
@@ -336,6 +361,23 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         }
         None => None,
     };
+    // Body 0 over time (position, velocity, hydrodynamic force) for scenes with few bodies.
+    let mut trajectory: Vec<(f64, blockflow_kernels::rigid::Body)> = Vec::new();
+    let mut traj_text = String::from("step,time,x,y,z,vx,vy,vz,wx,wy,wz,fx,fy,fz\n");
+    let mut record = |sim: &Simulation<T>, text: &mut String| {
+        if let Some(p) = sim.particles.as_ref() {
+            if let Some(b) = p.bodies(sim.step).first() {
+                let t = sim.step as f64 * p.dt;
+                trajectory.push((t, *b));
+                let (x, v, w, f) = (b.position, b.velocity, b.angular_velocity, b.force);
+                *text += &format!(
+                    "{},{t:.9e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e}\n",
+                    sim.step, x.x, x.y, x.z, v.x, v.y, v.z, w.x, w.y, w.z, f.x, f.y, f.z
+                );
+            }
+        }
+    };
+    record(&sim, &mut traj_text);
     let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
     let mut vtk = match vtk_every {
         Some(_) => {
@@ -403,6 +445,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
             if let (Some(ps), Some(row)) = (pseries.as_mut(), particle_row(&sim)) {
                 ps.push(&row)?;
             }
+            record(&sim, &mut traj_text);
         }
         if let (Some(v), Some(every)) = (vtk.as_mut(), vtk_every) {
             if s % every == 0 {
@@ -416,6 +459,10 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     series.finish()?;
     if let Some(ps) = pseries {
         ps.finish()?;
+    }
+    if sim.particles.as_ref().is_some_and(|p| p.bodies(sim.step).len() <= 16) {
+        let path = dir.join("trajectory.csv");
+        std::fs::write(&path, &traj_text).map_err(|e| io_err(&path, e))?;
     }
     if let Some(path) = &opts.trace {
         pipe.write_trace(path).map_err(|e| io_err(path, e))?;
@@ -437,7 +484,6 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         rigid_body: sim.particles.as_ref().map(|_| t.part_cpu[3]),
         map: coupled.then_some(t.part_cpu[4]),
         reconstruct: coupled.then_some(t.part_cpu[5]),
-        ..Default::default()
     };
     summary.particles = sim.particles.as_ref().map(|p| ParticleSummary {
         bodies: p.bodies(sim.step).len(),
@@ -496,7 +542,10 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         write_summary(&dir, &summary)?;
         return Err(e);
     }
-    summary.observables = (scene.observe)(&sim);
+    summary.observables = (scene.observe)(&RunView {
+        sim: &sim,
+        trajectory: &trajectory,
+    });
     summary.status = "ok".to_string();
     write_summary(&dir, &summary)?;
     Ok(summary)

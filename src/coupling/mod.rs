@@ -87,6 +87,10 @@ pub struct BodyForce {
 pub struct ParticleCells {
     /// Id + 1 of the body covering each cell (ghost layer included); 0: none.
     pub owner: Vec<u64>,
+    /// The previous mapping's buffer, reused.
+    owner_spare: Vec<u64>,
+    /// Scratch: cells next to a particle cell.
+    mark: Vec<bool>,
     /// Runs of interior cells that are fluid now (static fluid and not covered by a body).
     pub segments: Vec<Segment>,
     /// Interior fluid cells now.
@@ -127,7 +131,15 @@ pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: 
     let mut out = DVec3::ZERO;
     for a in 0..3 {
         let g = origin[a] as i64 + xyz[a] as i64 - 1;
-        let gw = if d.periodic[a] { g.rem_euclid(n[a] as i64) } else { g };
+        let len = n[a] as i64;
+        // Ghost cells lie at most one cell outside the domain: one period wraps them.
+        let gw = if !d.periodic[a] || (0..len).contains(&g) {
+            g
+        } else if g < 0 {
+            g + len
+        } else {
+            g - len
+        };
         out[a] = min_image(gw as f64 + 0.5 - centre[a], n[a] as f64, d.periodic[a]);
     }
     out
@@ -139,8 +151,13 @@ pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: 
 pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, mode: SurfaceBoundary) {
     let l = b.layout;
     let [fx, fy, fz] = l.full();
-    let n = l.len();
-    let old = std::mem::replace(&mut pc.owner, vec![0u64; n]);
+    // Cells of the block with its ghost layer (element indices run below the field's stride).
+    let n = l.sxy * fz;
+    let mut old = std::mem::take(&mut pc.owner);
+    let mut fresh = std::mem::take(&mut pc.owner_spare);
+    fresh.clear();
+    fresh.resize(n, 0);
+    pc.owner = fresh;
     let cells = d.cells();
     for body in &bodies {
         // Every periodic image whose bounding box meets the block with its ghost layer.
@@ -158,16 +175,25 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
         for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
             for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
                 for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
+                    // The offset is separable per axis: compute each axis once (same bits as cell_offset).
+                    let axis = |a: usize, k: i64| {
+                        let mut xyz = [1usize; 3];
+                        xyz[a] = k as usize;
+                        cell_offset(d, b.origin, xyz, body.position)[a]
+                    };
+                    let ox: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).collect();
+                    let oy: Vec<f64> = (ry.0..=ry.1).map(|k| axis(1, k)).collect();
                     for z in rz.0..=rz.1 {
-                        for y in ry.0..=ry.1 {
-                            for x in rx.0..=rx.1 {
-                                let xyz = [x as usize, y as usize, z as usize];
-                                let i = l.idx(xyz[0], xyz[1], xyz[2]);
-                                if b.flags[i] & flags::FLUID == 0 {
-                                    continue;
-                                }
-                                let off = cell_offset(d, b.origin, xyz, body.position);
-                                if off.length_squared() <= r2 {
+                        let oz = axis(2, z);
+                        for (jy, y) in (ry.0..=ry.1).enumerate() {
+                            let yz = oy[jy] * oy[jy] + oz * oz;
+                            if yz > r2 {
+                                continue;
+                            }
+                            let row = l.idx(0, y as usize, z as usize);
+                            for (jx, x) in (rx.0..=rx.1).enumerate() {
+                                let i = row + x as usize;
+                                if b.flags[i] & flags::FLUID != 0 && ox[jx] * ox[jx] + yz <= r2 {
                                     pc.owner[i] = body.id + 1;
                                 }
                             }
@@ -177,13 +203,12 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
             }
         }
     }
-    // Segments, turned cells and links, scanning the interior once.
+    // Segments and turned cells, scanning the interior once.
     pc.segments.clear();
     pc.turned.clear();
     pc.links.clear();
     pc.fluid_cells = 0;
     pc.near_particle_cells = 0;
-    let slot = |id: u64| bodies.binary_search_by_key(&id, |m| m.id).ok();
     for z in 1..fz - 1 {
         for y in 1..fy - 1 {
             let mut run: Option<Segment> = None;
@@ -204,42 +229,77 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
                 if old.len() == n && old[i] != 0 {
                     pc.turned.push((i, old[i] - 1));
                 }
-                let mut near = false;
-                for q in 1..Q {
-                    let t = (i as isize + l.offset(C[q])) as usize;
-                    let o = pc.owner[t];
-                    if o == 0 {
-                        continue;
-                    }
-                    let Some(k) = slot(o - 1) else { continue };
-                    let body = &bodies[k];
-                    let rel = cell_offset(d, b.origin, [x, y, z], body.position);
-                    let second = (i as isize - l.offset(C[q])) as usize;
-                    let second_fluid = b.flags[second] & flags::FLUID != 0 && pc.owner[second] == 0;
-                    let (delta, second) = match (mode, link_delta(rel, q, DVec3::ZERO, body.radius)) {
-                        (SurfaceBoundary::Cli, Some(dl)) if second_fluid => (dl, Some(second)),
-                        _ => (0.5, None),
-                    };
-                    pc.links.push(ParticleLink {
-                        fluid: i,
-                        q: q as u8,
-                        body: k as u32,
-                        delta,
-                        second,
-                        rel,
-                    });
-                    near = true;
-                }
-                if near {
-                    pc.near_particle_cells += 1;
-                }
             }
             if let Some(s) = run.take() {
                 pc.segments.push(s);
             }
         }
     }
+    // Links: mark the cells next to a particle cell (few), then visit the marked fluid cells in cell order.
+    let is_fluid = |i: usize| b.flags[i] & flags::FLUID != 0 && pc.owner[i] == 0;
+    let mut mark = std::mem::take(&mut pc.mark);
+    mark.clear();
+    mark.resize(n, false);
+    let mut any = false;
+    for (t, &o) in pc.owner.iter().enumerate() {
+        if o != 0 {
+            any = true;
+            for c in C.iter().skip(1) {
+                let i = t as isize - l.offset(*c);
+                if i >= 0 && (i as usize) < n {
+                    mark[i as usize] = true;
+                }
+            }
+        }
+    }
+    let mut found: Vec<(usize, usize, usize)> = Vec::new();
+    if any {
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                let row = l.idx(0, y, z);
+                for x in 1..fx - 1 {
+                    let i = row + x;
+                    if !mark[i] || !is_fluid(i) {
+                        continue;
+                    }
+                    for (q, c) in C.iter().enumerate().skip(1) {
+                        let t = (i as isize + l.offset(*c)) as usize;
+                        if pc.owner[t] != 0 {
+                            found.push((i, q, t));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    pc.mark = mark;
+    let slot = |id: u64| bodies.binary_search_by_key(&id, |m| m.id).ok();
+    let mut last_cell = usize::MAX;
+    for (i, q, t) in found {
+        let Some(k) = slot(pc.owner[t] - 1) else { continue };
+        let body = &bodies[k];
+        let rel = cell_offset(d, b.origin, l.coords(i), body.position);
+        let second = (i as isize - l.offset(C[q])) as usize;
+        let (delta, second) = match (mode, link_delta(rel, q, DVec3::ZERO, body.radius)) {
+            (SurfaceBoundary::Cli, Some(dl)) if is_fluid(second) => (dl, Some(second)),
+            _ => (0.5, None),
+        };
+        pc.links.push(ParticleLink {
+            fluid: i,
+            q: q as u8,
+            body: k as u32,
+            delta,
+            second,
+            rel,
+        });
+        if i != last_cell {
+            pc.near_particle_cells += 1;
+            last_cell = i;
+        }
+    }
     pc.bodies = bodies;
+    old.clear();
+    pc.owner_spare = old;
 }
 
 /// Reconstruction (Algorithm 6) of the cells that turned fluid: the (forced) equilibrium with the
@@ -260,8 +320,8 @@ pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &ParticleCe
     for &(i, id) in &pc.turned {
         let mut sum = 0.0;
         let mut count = 0usize;
-        for q in 1..Q {
-            let t = (i as isize + l.offset(C[q])) as usize;
+        for c in C.iter().skip(1) {
+            let t = (i as isize + l.offset(*c)) as usize;
             let [x, y, z] = l.coords(t);
             let interior = x >= 1 && y >= 1 && z >= 1 && x < fx - 1 && y < fy - 1 && z < fz - 1;
             if interior && b.flags[t] & flags::FLUID != 0 && pc.owner[t] == 0 && !turned.contains(&t) {

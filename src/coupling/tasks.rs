@@ -8,8 +8,9 @@
 //! | `forces(b, t)` | overlay forces of b's neighbours | force and torque of the bodies b published |
 //!
 //! `forces(b, t)` sums, for every body b published, the partial forces of the blocks around b in
-//! ascending block-id order (eq. 8, 9) and stores them in the body: the hydrodynamic force is then held
-//! constant over the S rigid-body sub-steps that follow (Algorithm 1).
+//! ascending block-id order (eq. 8, 9) and stores them in the body, averaged with the previous step's
+//! force when `particles.force_averaging` is on: the hydrodynamic force is then held constant over the S
+//! rigid-body sub-steps that follow (Algorithm 1).
 
 use super::{map, BodyForce, MapBody, ParticleCells, SurfaceBoundary};
 use crate::block::Block;
@@ -79,7 +80,7 @@ pub unsafe fn map_task<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, m
 /// # Safety
 /// No other task may access b's published list of that parity, or write the overlays of b's neighbours,
 /// concurrently.
-pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: usize, steps: u64) {
+pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: usize, steps: u64, average: bool) {
     let pb = &parts.blocks[b];
     let list = pb.published_mut(parts.parity(steps));
     for body in list.bodies.iter_mut() {
@@ -92,8 +93,23 @@ pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: us
                 }
             }
         }
-        body.force = f;
-        body.torque = t;
+        if average {
+            // Mean of this and the previous step's force: removes the period-2 oscillation of the
+            // momentum exchange that otherwise destabilises light particles (ρp/ρf ≲ 2). The first step
+            // has no previous force and uses its own.
+            let (fp, tp) = if steps == 0 {
+                (f, t)
+            } else {
+                (body.force_prev, body.torque_prev)
+            };
+            body.force = 0.5 * (f + fp);
+            body.torque = 0.5 * (t + tp);
+        } else {
+            body.force = f;
+            body.torque = t;
+        }
+        body.force_prev = f;
+        body.torque_prev = t;
     }
 }
 

@@ -24,7 +24,7 @@ pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
 pub use couette::CouetteConfig;
 pub use granular::{CollisionConfig, GranularBoxConfig, InclineConfig};
-pub use particulate::DragArrayConfig;
+pub use particulate::{DragArrayConfig, HopperConfig, SettlingSphereConfig};
 pub use taylor_green::TaylorGreenConfig;
 
 /// `[scene]`: which scene (`kind`) and its parameters.
@@ -49,6 +49,10 @@ pub enum SceneConfig {
     Collision(CollisionConfig),
     /// A fixed sphere in a periodic cube driven by a body force: drag of a simple cubic array.
     DragArray(DragArrayConfig),
+    /// One sphere settling in a closed box of fluid.
+    SettlingSphere(SettlingSphereConfig),
+    /// Spheres settling through a hopper narrowed by four inclined planes (section 4.3).
+    Hopper(HopperConfig),
 }
 
 /// Read access to the fluid for observables: visits (global cell, δρ, u) of every fluid cell.
@@ -59,6 +63,10 @@ pub trait FluidView {
     fn steps_taken(&self) -> u64;
     /// The rigid bodies, sorted by id (empty without particles).
     fn bodies(&self) -> Vec<Body> {
+        Vec::new()
+    }
+    /// Body 0 recorded at every row of the time series: (time, body).
+    fn trajectory(&self) -> Vec<(f64, Body)> {
         Vec::new()
     }
     /// Hydrodynamic force and torque of the last boundary pass per body, sorted by id.
@@ -130,7 +138,7 @@ pub struct Scene {
 }
 
 /// The scene kinds, for messages.
-pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision, drag_array";
+pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision, drag_array, settling_sphere, hopper";
 
 /// Checks a raw `[scene]` table against the keys of its `kind`, so errors name the full key path
 /// (`scene.resolution: invalid type ...`); serde's tagged enums would only say `scene`.
@@ -168,6 +176,8 @@ pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
         "incline" => de::<InclineConfig>(v),
         "collision" => de::<CollisionConfig>(v),
         "drag_array" => de::<DragArrayConfig>(v),
+        "settling_sphere" => de::<SettlingSphereConfig>(v),
+        "hopper" => de::<HopperConfig>(v),
         k => Err(format!("scene.kind = {k:?}: unknown scene; one of {KINDS}")),
     }
 }
@@ -184,6 +194,8 @@ pub fn build(cfg: &Config) -> Result<Scene> {
         SceneConfig::Incline(s) => granular::build_incline(s, cfg),
         SceneConfig::Collision(s) => granular::build_collision(s, cfg),
         SceneConfig::DragArray(s) => particulate::build_drag_array(s, cfg),
+        SceneConfig::SettlingSphere(s) => particulate::build_settling_sphere(s, cfg),
+        SceneConfig::Hopper(s) => particulate::build_hopper(s, cfg),
     }
 }
 

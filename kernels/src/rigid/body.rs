@@ -26,6 +26,10 @@ pub struct Body {
     pub force: DVec3,
     /// External torque (e.g. hydrodynamic).
     pub torque: DVec3,
+    /// The previous step's raw hydrodynamic force (for averaging the coupling force over two steps).
+    pub force_prev: DVec3,
+    /// The previous step's raw hydrodynamic torque.
+    pub torque_prev: DVec3,
 }
 
 impl Body {
@@ -42,6 +46,8 @@ impl Body {
             fixed: false,
             force: DVec3::ZERO,
             torque: DVec3::ZERO,
+            force_prev: DVec3::ZERO,
+            torque_prev: DVec3::ZERO,
         }
     }
     /// Volume 4/3 π r³.
