@@ -369,8 +369,8 @@ impl<T: Real> Pipeline<T> {
                 KIND_RECON => {
                     // SAFETY: as above; reconstruct writes b's field p before anyone reads it this step.
                     unsafe {
-                        if let Some(pc) = b.particle_cells() {
-                            coupling::reconstruct(&domain, b, pc, p, &params)
+                        if b.particle_cells().is_some() {
+                            coupling::reconstruct(&domain, b, b.particle_cells_mut(), p, &params)
                         }
                     }
                 }

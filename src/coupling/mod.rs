@@ -103,6 +103,11 @@ pub struct ParticleCells {
     pub links: Vec<ParticleLink>,
     /// Interior cells that turned from solid to fluid in this step, with the id of the body that left.
     pub turned: Vec<(usize, u64)>,
+    /// Interior cells that a body covered in this step (fluid to solid), with its id.
+    pub covered: Vec<(usize, u64)>,
+    /// Momentum the covered and reconstructed cells exchanged with each body in this step (the fluid
+    /// momentum a body swallows, minus what a rebuilt cell receives), sorted by id; added to the force.
+    pub exchanged: Vec<BodyForce>,
     /// Forces of the last boundary pass, sorted by id.
     pub forces: Vec<BodyForce>,
 }
@@ -206,6 +211,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
     // Segments and turned cells, scanning the interior once.
     pc.segments.clear();
     pc.turned.clear();
+    pc.covered.clear();
     pc.links.clear();
     pc.fluid_cells = 0;
     pc.near_particle_cells = 0;
@@ -218,6 +224,9 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
                 if !fluid {
                     if let Some(s) = run.take() {
                         pc.segments.push(s);
+                    }
+                    if pc.owner[i] != 0 && old.len() == n && old[i] == 0 {
+                        pc.covered.push((i, pc.owner[i] - 1));
                     }
                     continue;
                 }
@@ -309,12 +318,42 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
 ///
 /// # Safety
 /// No other task may access field `p` of this block concurrently.
-pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &ParticleCells, p: usize, params: &TrtParams) {
-    if pc.turned.is_empty() {
+pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, p: usize, params: &TrtParams) {
+    pc.exchanged.clear();
+    if pc.turned.is_empty() && pc.covered.is_empty() {
         return;
     }
     let l = b.layout;
     let f = b.field_mut(p);
+    let mut add = |id: u64, x: usize, j: DVec3| {
+        let Ok(k) = pc.bodies.binary_search_by_key(&id, |m| m.id) else {
+            return;
+        };
+        let m = &pc.bodies[k];
+        let r = cell_offset(d, b.origin, l.coords(x), m.position);
+        let e = match pc.exchanged.binary_search_by_key(&id, |e| e.id) {
+            Ok(e) => e,
+            Err(e) => {
+                pc.exchanged.insert(
+                    e,
+                    BodyForce {
+                        id,
+                        force: DVec3::ZERO,
+                        torque: DVec3::ZERO,
+                    },
+                );
+                e
+            }
+        };
+        pc.exchanged[e].force += j;
+        pc.exchanged[e].torque += r.cross(j);
+    };
+    // A covered cell's fluid momentum ρ0 u goes to the body that covers it.
+    for &(i, id) in &pc.covered {
+        let cell: [T; Q] = f.cell(i);
+        let (_, u) = moments(&cell, params.force);
+        add(id, i, RHO0 * DVec3::from(u));
+    }
     let turned: std::collections::HashSet<usize> = pc.turned.iter().map(|t| t.0).collect();
     let [fx, fy, fz] = l.full();
     for &(i, id) in &pc.turned {
@@ -342,6 +381,9 @@ pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &ParticleCe
         let eq = post_collision_equilibrium(drho, u.to_array(), params);
         let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(eq[q]));
         f.set_cell(i, &cell);
+        // ... and a rebuilt cell's momentum comes from the body that left it.
+        let (_, u_new) = moments(&cell, params.force);
+        add(id, i, -RHO0 * DVec3::from(u_new));
     }
 }
 
@@ -357,6 +399,11 @@ pub unsafe fn boundary<T: Real>(b: &Block<T>, pc: &mut ParticleCells, p: usize) 
     let l = b.layout;
     let data = f.raw();
     let mut acc = vec![(DVec3::ZERO, DVec3::ZERO); pc.bodies.len()];
+    for e in &pc.exchanged {
+        if let Ok(k) = pc.bodies.binary_search_by_key(&e.id, |m| m.id) {
+            acc[k] = (e.force, e.torque);
+        }
+    }
     for link in &pc.links {
         let q = link.q as usize;
         let m = &pc.bodies[link.body as usize];

@@ -95,15 +95,11 @@ pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: us
         }
         if average {
             // Mean of this and the previous step's force: removes the period-2 oscillation of the
-            // momentum exchange that otherwise destabilises light particles (ρp/ρf ≲ 2). The first step
-            // has no previous force and uses its own.
-            let (fp, tp) = if steps == 0 {
-                (f, t)
-            } else {
-                (body.force_prev, body.torque_prev)
-            };
-            body.force = 0.5 * (f + fp);
-            body.torque = 0.5 * (t + tp);
+            // momentum exchange that otherwise destabilises light particles (ρp/ρf ≲ 2). Before the first
+            // step the previous force is zero, so every step's impulse reaches the body in full, half now
+            // and half one step later (momentum stays balanced up to the half step in flight).
+            body.force = 0.5 * (f + body.force_prev);
+            body.torque = 0.5 * (t + body.torque_prev);
         } else {
             body.force = f;
             body.torque = t;

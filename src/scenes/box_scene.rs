@@ -2,11 +2,13 @@
 //! walls on non-periodic faces), cut by planes of any orientation, with an optional uniform body force and
 //! initial velocity. The general-purpose scene for geometry checks and experiments.
 
-use super::{check, kinetic_energy, Scene};
+use super::{check, kinetic_energy, ParticleScene, Scene};
 use crate::config::Config;
 use crate::error::{config_err, Result};
 use crate::geometry::{Geometry, Plane};
+use blockflow_kernels::rigid::{Body, Plane as RigidPlane};
 use blockflow_kernels::TrtParams;
+use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -23,6 +25,32 @@ pub struct PlaneConfig {
     pub velocity: [f64; 3],
 }
 
+/// One sphere of `scene.spheres`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SphereConfig {
+    /// Centre (cells, global coordinates).
+    pub centre: [f64; 3],
+    /// Radius (cells).
+    pub radius: f64,
+    /// Density relative to the fluid.
+    #[serde(default = "one")]
+    pub density: f64,
+    /// Initial velocity (lattice units).
+    #[serde(default)]
+    pub velocity: [f64; 3],
+    /// Initial angular velocity.
+    #[serde(default)]
+    pub angular_velocity: [f64; 3],
+    /// A fixed sphere never moves.
+    #[serde(default)]
+    pub fixed: bool,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
 /// `[scene]` keys of `kind = "box"`.
 #[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -36,6 +64,12 @@ pub struct BoxConfig {
     /// Planes cutting the box.
     #[serde(default)]
     pub planes: Vec<PlaneConfig>,
+    /// Spheres coupled to the fluid (ids in list order); walls and planes are also rigid planes for them.
+    #[serde(default)]
+    pub spheres: Vec<SphereConfig>,
+    /// Gravity on the spheres (lattice units); `particles.gravity` overrides.
+    #[serde(default)]
+    pub gravity: [f64; 3],
     /// Default step count when `run.steps` is absent.
     #[serde(default = "d_steps")]
     pub steps: u64,
@@ -74,6 +108,43 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         )?;
     }
     let u = s.velocity;
+    let mut bodies = Vec::new();
+    for (i, sp) in s.spheres.iter().enumerate() {
+        let vals = sp.centre.iter().chain(&sp.velocity).chain(&sp.angular_velocity);
+        if vals.clone().any(|v| !v.is_finite()) || !(sp.radius > 0.0) || !(sp.density > 0.0) {
+            return config_err(format!(
+                "scene.spheres[{i}]: centre, velocity and angular_velocity must be finite, radius and density > 0"
+            ));
+        }
+        let mut b = Body::sphere(i as u64, DVec3::from(sp.centre), sp.radius, sp.density);
+        b.velocity = DVec3::from(sp.velocity);
+        b.angular_velocity = DVec3::from(sp.angular_velocity);
+        b.fixed = sp.fixed;
+        bodies.push(b);
+    }
+    let particles = if bodies.is_empty() {
+        None
+    } else {
+        let periodic = cfg.domain.periodic.unwrap_or([true; 3]);
+        let cells: [usize; 3] = std::array::from_fn(|a| {
+            cfg.domain.blocks.unwrap_or([1, 1, 1])[a] * cfg.domain.block_size.unwrap_or([16, 16, 16])[a]
+        });
+        let mut planes = super::wall_planes(cells, periodic);
+        for (i, p) in geometry.planes.iter().enumerate() {
+            planes.push(RigidPlane {
+                normal: DVec3::from(p.normal),
+                offset: p.offset,
+                id: i as u64,
+            });
+        }
+        Some(ParticleScene {
+            bodies,
+            planes,
+            gravity: s.gravity,
+            restitution_threshold: 1e-3,
+            dt: 1.0,
+        })
+    };
     Ok(Scene {
         name: "box",
         cells: None,
@@ -88,7 +159,11 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         steps: s.steps,
         init: Box::new(move |_| (0.0, u)),
         observe: Box::new(|v| BTreeMap::from([("kinetic_energy".to_string(), kinetic_energy(v))])),
-        particles: None,
-        description: format!("box with {} planes, tau = {tau}", s.planes.len()),
+        particles,
+        description: format!(
+            "box with {} planes and {} spheres, tau = {tau}",
+            s.planes.len(),
+            s.spheres.len()
+        ),
     })
 }

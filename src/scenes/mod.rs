@@ -19,7 +19,7 @@ use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-pub use box_scene::{BoxConfig, PlaneConfig};
+pub use box_scene::{BoxConfig, PlaneConfig, SphereConfig};
 pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
 pub use couette::CouetteConfig;
