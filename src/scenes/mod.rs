@@ -24,7 +24,7 @@ pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
 pub use couette::CouetteConfig;
 pub use granular::{CollisionConfig, GranularBoxConfig, InclineConfig};
-pub use particulate::{DragArrayConfig, HopperConfig, SettlingSphereConfig};
+pub use particulate::{CalibrationConfig, DragArrayConfig, HopperConfig, SettlingSphereConfig};
 pub use taylor_green::TaylorGreenConfig;
 
 /// `[scene]`: which scene (`kind`) and its parameters.
@@ -53,6 +53,8 @@ pub enum SceneConfig {
     SettlingSphere(SettlingSphereConfig),
     /// Spheres settling through a hopper narrowed by four inclined planes (section 4.3).
     Hopper(HopperConfig),
+    /// The workload-calibration set-up of section 3.3.
+    Calibration(CalibrationConfig),
 }
 
 /// Read access to the fluid for observables: visits (global cell, δρ, u) of every fluid cell.
@@ -138,7 +140,7 @@ pub struct Scene {
 }
 
 /// The scene kinds, for messages.
-pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision, drag_array, settling_sphere, hopper";
+pub const KINDS: &str = "channel, couette, taylor_green, cavity, box, granular_box, incline, collision, drag_array, settling_sphere, hopper, calibration";
 
 /// Checks a raw `[scene]` table against the keys of its `kind`, so errors name the full key path
 /// (`scene.resolution: invalid type ...`); serde's tagged enums would only say `scene`.
@@ -178,6 +180,7 @@ pub fn check_table(scene: &toml::Value) -> std::result::Result<(), String> {
         "drag_array" => de::<DragArrayConfig>(v),
         "settling_sphere" => de::<SettlingSphereConfig>(v),
         "hopper" => de::<HopperConfig>(v),
+        "calibration" => de::<CalibrationConfig>(v),
         k => Err(format!("scene.kind = {k:?}: unknown scene; one of {KINDS}")),
     }
 }
@@ -196,6 +199,7 @@ pub fn build(cfg: &Config) -> Result<Scene> {
         SceneConfig::DragArray(s) => particulate::build_drag_array(s, cfg),
         SceneConfig::SettlingSphere(s) => particulate::build_settling_sphere(s, cfg),
         SceneConfig::Hopper(s) => particulate::build_hopper(s, cfg),
+        SceneConfig::Calibration(s) => particulate::build_calibration(s, cfg),
     }
 }
 

@@ -459,3 +459,159 @@ pub(super) fn build_hopper(s: &HopperConfig, cfg: &Config) -> Result<Scene> {
         ),
     })
 }
+
+/// `[scene]` keys of `kind = "calibration"` (section 3.3, Figure 5): spheres at random positions in a
+/// horizontally periodic box of 4 × 4 × 5 blocks whose top wall sits `top_offset` block sizes below the
+/// top of the block grid, settling onto the bottom for 2.5 T with T = L_z / u_s.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationConfig {
+    /// Sphere diameter D in cells.
+    #[serde(default = "d_cal_d")]
+    pub diameter: f64,
+    /// Global solid volume fraction.
+    #[serde(default = "d_cal_phi")]
+    pub solid_fraction: f64,
+    /// Galileo number Ga = u_s D / ν with u_s = sqrt((ρp/ρf − 1) g D).
+    #[serde(default = "d_galileo")]
+    pub galileo: f64,
+    /// Density ratio ρp / ρf.
+    #[serde(default = "d_cal_ratio")]
+    pub density_ratio: f64,
+    /// Offset of the top wall below the block grid, in block sizes.
+    #[serde(default = "d_cal_offset")]
+    pub top_offset: f64,
+    /// Characteristic speed u_s in lattice units (sets ν = u_s D / Ga unless `fluid.tau` is given).
+    #[serde(default = "d_cal_us")]
+    pub settling_speed: f64,
+    /// Duration in units of T = L_z / u_s.
+    #[serde(default = "d_cal_duration")]
+    pub duration: f64,
+    /// Seed of the random positions.
+    #[serde(default = "d_seed")]
+    pub seed: u64,
+}
+
+fn d_cal_d() -> f64 {
+    5.0
+}
+fn d_cal_phi() -> f64 {
+    0.2
+}
+fn d_cal_ratio() -> f64 {
+    2.5
+}
+fn d_cal_offset() -> f64 {
+    1.05
+}
+fn d_cal_us() -> f64 {
+    0.05
+}
+fn d_cal_duration() -> f64 {
+    2.5
+}
+
+pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<Scene> {
+    check("diameter", s.diameter, s.diameter >= 3.0, "must be at least 3 cells")?;
+    check(
+        "solid_fraction",
+        s.solid_fraction,
+        s.solid_fraction > 0.0 && s.solid_fraction <= 0.3,
+        "must be in (0, 0.3] (random placement jams above)",
+    )?;
+    check("galileo", s.galileo, s.galileo > 0.0 && s.galileo <= 500.0, "must be in (0, 500]")?;
+    check("density_ratio", s.density_ratio, s.density_ratio > 1.0, "must be > 1")?;
+    check("top_offset", s.top_offset, (0.0..2.0).contains(&s.top_offset), "must be in [0, 2) block sizes")?;
+    check(
+        "settling_speed",
+        s.settling_speed,
+        s.settling_speed > 0.0 && s.settling_speed <= 0.1,
+        "must be in (0, 0.1] (Mach number)",
+    )?;
+    check("duration", s.duration, s.duration > 0.0, "must be positive")?;
+    let blocks = cfg.domain.blocks.unwrap_or([4, 4, 5]);
+    let bs = cfg.domain.block_size.unwrap_or([16, 16, 16]);
+    let cells: [usize; 3] = std::array::from_fn(|a| blocks[a] * bs[a]);
+    let (lx, ly) = (cells[0] as f64, cells[1] as f64);
+    let lz = cells[2] as f64 - s.top_offset * bs[2] as f64;
+    let d = s.diameter;
+    let nu = cfg.fluid.tau.map_or(s.settling_speed * d / s.galileo, |t| (t - 0.5) / 3.0);
+    let tau = 0.5 + 3.0 * nu;
+    let u_s = s.galileo * nu / d;
+    let g = u_s * u_s / ((s.density_ratio - 1.0) * d);
+    let vol = std::f64::consts::PI / 6.0 * d.powi(3);
+    let count = (s.solid_fraction * lx * ly * lz / vol).round() as usize;
+    // Random sequential addition: uniform candidates, rejected when they overlap a placed sphere or a wall.
+    let r = d / 2.0;
+    let mut bodies: Vec<Body> = Vec::with_capacity(count);
+    let mut k = 0u64;
+    while bodies.len() < count {
+        if k > 2000 * count as u64 + 10_000 {
+            return crate::error::config_err(format!(
+                "scene.solid_fraction = {}: could not place {count} spheres at random; lower it",
+                s.solid_fraction
+            ));
+        }
+        let u = |c: u64| {
+            let h = crate::sim::mix(s.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (4 * k + c));
+            (h >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let p = DVec3::new(u(0) * lx, u(1) * ly, r + 0.05 + u(2) * (lz - d - 0.1));
+        k += 1;
+        let clear = bodies.iter().all(|b| {
+            let mut dv = b.position - p;
+            dv.x -= lx * (dv.x / lx).round();
+            dv.y -= ly * (dv.y / ly).round();
+            dv.length() > d + 0.05
+        });
+        if clear {
+            bodies.push(Body::sphere(bodies.len() as u64, p, r, s.density_ratio));
+        }
+    }
+    let mut geometry = Geometry::default();
+    geometry.planes.push(crate::geometry::Plane::axis_wall(2, lz, false));
+    let mut planes = super::wall_planes(cells, [true, true, false]);
+    planes.retain(|p| p.normal.z > 0.0);
+    planes.push(blockflow_kernels::rigid::Plane::through(
+        1,
+        DVec3::new(0.0, 0.0, lz),
+        DVec3::new(0.0, 0.0, -1.0),
+    ));
+    let steps = (s.duration * lz / u_s).ceil() as u64;
+    let observe = Box::new(move |v: &dyn super::FluidView| {
+        let b = v.bodies();
+        let n = b.len().max(1) as f64;
+        BTreeMap::from([
+            ("mean_height".to_string(), b.iter().map(|x| x.position.z).sum::<f64>() / n / lz),
+            ("max_speed".to_string(), b.iter().map(|x| x.velocity.length()).fold(0.0, f64::max)),
+            ("bodies".to_string(), b.len() as f64),
+        ])
+    });
+    Ok(Scene {
+        name: "calibration",
+        cells: Some(cells),
+        periodic: [true, true, false],
+        default_blocks: blocks,
+        geometry,
+        params: TrtParams {
+            tau,
+            magic: cfg.fluid.magic,
+            force: [0.0; 3],
+        },
+        steps,
+        init: Box::new(|_| (0.0, [0.0; 3])),
+        observe,
+        particles: Some(ParticleScene {
+            bodies,
+            planes,
+            gravity: [0.0, 0.0, -g],
+            restitution_threshold: 1e-3,
+            dt: 1.0,
+        }),
+        description: format!(
+            "calibration (section 3.3): {count} spheres of D = {d}, solid fraction {}, Ga = {}, rho_p/rho_f = {}, \
+             {cells:?} cells with the top wall at z = {lz:.1}, tau = {tau:.4}",
+            s.solid_fraction, s.galileo, s.density_ratio
+        ),
+    })
+}
