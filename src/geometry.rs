@@ -15,6 +15,8 @@ pub mod flags {
     pub const MOVING_WALL: u8 = 8;
     /// A solid cell with no fluid neighbour: never computed nor read.
     pub const OUTSIDE: u8 = 16;
+    /// A cell covered by a particle (VTK output only; the overlay of `coupling` holds the owners).
+    pub const PARTICLE: u8 = 32;
 }
 
 /// A half-space boundary: cells whose centre x satisfies `normal · x < offset` are solid.

@@ -6,7 +6,7 @@ use crate::domain::DomainSpec;
 use crate::error::{io_err, Error, Result};
 use crate::io::series::{ParticleRow, ParticleSeries, Series};
 use crate::io::summary::{BalanceSummary, Checksums, ParticleSummary, PartsSeconds, Summary, WorkSummary};
-use crate::io::vtk::{VtkPiece, VtkSeries};
+use crate::io::vtk::{ParticleVtkSeries, VtkParticle, VtkPiece, VtkSeries};
 use crate::particles::Particles;
 use crate::pipeline::Pipeline;
 use crate::scenes::{self, FluidView, Scene};
@@ -188,7 +188,7 @@ fn write_summary(dir: &Path, s: &Summary) -> Result<()> {
     std::fs::rename(&tmp, &path).map_err(|e| io_err(&path, e))
 }
 
-fn vtk_step<T: Real>(vtk: &mut VtkSeries, sim: &Simulation<T>) -> Result<()> {
+fn vtk_step<T: Real>(vtk: &mut VtkSeries, pvtk: Option<&mut ParticleVtkSeries>, sim: &Simulation<T>) -> Result<()> {
     let force = sim.params.force;
     let p = sim.parity();
     let mut data = Vec::with_capacity(sim.blocks.len());
@@ -201,7 +201,12 @@ fn vtk_step<T: Real>(vtk: &mut VtkSeries, sim: &Simulation<T>) -> Result<()> {
             for y in 1..=ny {
                 for x in 1..=nx {
                     let i = b.layout.idx(x, y, z);
-                    let f = b.flags[i];
+                    let mut f = b.flags[i];
+                    if b.particle_cells()
+                        .is_some_and(|pc| pc.owner.get(i).is_some_and(|&o| o != 0))
+                    {
+                        f = crate::geometry::flags::PARTICLE;
+                    }
                     fl.push(f);
                     if f & crate::geometry::flags::FLUID != 0 {
                         let (r, u) = crate::fluid::cell_moments(b, p, i, force);
@@ -228,7 +233,25 @@ fn vtk_step<T: Real>(vtk: &mut VtkSeries, sim: &Simulation<T>) -> Result<()> {
         })
         .collect();
     vtk.write_step(sim.step, sim.step as f64, &pieces)
-        .map_err(|e| Error::Io(format!("VTK output at step {}: {e}", sim.step)))
+        .map_err(|e| Error::Io(format!("VTK output at step {}: {e}", sim.step)))?;
+    if let (Some(pv), Some(parts)) = (pvtk, sim.particles.as_ref()) {
+        let list: Vec<VtkParticle> = parts
+            .bodies(sim.step)
+            .iter()
+            .map(|b| VtkParticle {
+                id: b.id,
+                position: b.position.to_array(),
+                radius: b.radius,
+                velocity: b.velocity.to_array(),
+                angular_velocity: b.angular_velocity.to_array(),
+                orientation: [b.orientation.x, b.orientation.y, b.orientation.z, b.orientation.w],
+                force: b.force.to_array(),
+            })
+            .collect();
+        pv.write_step(sim.step, sim.step as f64 * parts.dt, &list)
+            .map_err(|e| Error::Io(format!("particle VTK output at step {}: {e}", sim.step)))?;
+    }
+    Ok(())
 }
 
 /// The pinning policy of a configuration.
@@ -379,10 +402,14 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     };
     record(&sim, &mut traj_text);
     let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
+    let mut pvtk = match (vtk_every, &sim.particles) {
+        (Some(_), Some(_)) => Some(ParticleVtkSeries::new(&dir).map_err(|e| io_err(&dir, e))?),
+        _ => None,
+    };
     let mut vtk = match vtk_every {
         Some(_) => {
             let mut v = VtkSeries::new(&dir).map_err(|e| io_err(&dir, e))?;
-            vtk_step(&mut v, &sim)?;
+            vtk_step(&mut v, pvtk.as_mut(), &sim)?;
             Some(v)
         }
         None => None,
@@ -449,7 +476,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         }
         if let (Some(v), Some(every)) = (vtk.as_mut(), vtk_every) {
             if s % every == 0 {
-                vtk_step(v, &sim)?;
+                vtk_step(v, pvtk.as_mut(), &sim)?;
             }
         }
         bar.set_position(s);

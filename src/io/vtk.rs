@@ -316,3 +316,111 @@ mod tests {
         fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+/// One rigid body as a VTK point.
+#[derive(Clone, Copy, Debug)]
+pub struct VtkParticle {
+    /// Body id.
+    pub id: u64,
+    /// Centre.
+    pub position: [f64; 3],
+    /// Radius.
+    pub radius: f64,
+    /// Translational velocity.
+    pub velocity: [f64; 3],
+    /// Angular velocity.
+    pub angular_velocity: [f64; 3],
+    /// Orientation quaternion (x, y, z, w).
+    pub orientation: [f64; 4],
+    /// Hydrodynamic force held over the last step.
+    pub force: [f64; 3],
+}
+
+/// A time series of the particles: `vtk/particles_<step>.vtp` (points with id, radius, velocity, angular
+/// velocity, orientation and force; in ParaView apply *Glyph* → Sphere, scale by `radius`, factor 2)
+/// and `particles.pvd`.
+pub struct ParticleVtkSeries {
+    dir: PathBuf,
+    steps: Vec<(u64, f64)>,
+}
+
+impl ParticleVtkSeries {
+    /// Prepares `dir/vtk/`.
+    pub fn new(dir: &Path) -> io::Result<Self> {
+        fs::create_dir_all(dir.join("vtk"))?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            steps: Vec::new(),
+        })
+    }
+
+    /// Writes the particles of one step and rewrites `particles.pvd`.
+    pub fn write_step(&mut self, step: u64, time: f64, particles: &[VtkParticle]) -> io::Result<()> {
+        let n = particles.len();
+        let mut s = format!(
+            "<?xml version=\"1.0\"?>\n<VTKFile type=\"PolyData\" version=\"1.0\" byte_order=\"LittleEndian\">\n  \
+             <PolyData>\n    <Piece NumberOfPoints=\"{n}\" NumberOfVerts=\"{n}\" NumberOfLines=\"0\" \
+             NumberOfStrips=\"0\" NumberOfPolys=\"0\">\n      <Points>\n        \
+             <DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n"
+        );
+        for p in particles {
+            s += &format!(
+                "          {:?} {:?} {:?}\n",
+                p.position[0], p.position[1], p.position[2]
+            );
+        }
+        s += "        </DataArray>\n      </Points>\n      <Verts>\n        \
+              <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n";
+        for i in 0..n {
+            s += &format!("          {i}\n");
+        }
+        s += "        </DataArray>\n        <DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n";
+        for i in 0..n {
+            s += &format!("          {}\n", i + 1);
+        }
+        s += "        </DataArray>\n      </Verts>\n      <PointData Scalars=\"radius\" Vectors=\"velocity\">\n";
+        let mut array = |name: &str, comps: usize, ty: &str, f: &dyn Fn(&VtkParticle) -> Vec<f64>| {
+            s += &format!(
+                "        <DataArray type=\"{ty}\" Name=\"{name}\" NumberOfComponents=\"{comps}\" format=\"ascii\">\n"
+            );
+            for p in particles {
+                let v: Vec<String> = f(p)
+                    .iter()
+                    .map(|x| {
+                        if ty == "Int64" {
+                            format!("{}", *x as i64)
+                        } else {
+                            format!("{x:?}")
+                        }
+                    })
+                    .collect();
+                s += &format!("          {}\n", v.join(" "));
+            }
+            s += "        </DataArray>\n";
+        };
+        array("id", 1, "Int64", &|p| vec![p.id as f64]);
+        array("radius", 1, "Float64", &|p| vec![p.radius]);
+        array("velocity", 3, "Float64", &|p| p.velocity.to_vec());
+        array("angular_velocity", 3, "Float64", &|p| p.angular_velocity.to_vec());
+        array("orientation", 4, "Float64", &|p| p.orientation.to_vec());
+        array("force", 3, "Float64", &|p| p.force.to_vec());
+        s += "      </PointData>\n    </Piece>\n  </PolyData>\n</VTKFile>\n";
+        let file = format!("particles_{step:08}.vtp");
+        write_atomic(&self.dir.join("vtk").join(&file), |w| w.write_all(s.as_bytes()))?;
+        match self.steps.iter_mut().find(|(x, _)| *x == step) {
+            Some(e) => e.1 = time,
+            None => self.steps.push((step, time)),
+        }
+        let mut pvd = String::from(
+            "<?xml version=\"1.0\"?>\n<VTKFile type=\"Collection\" version=\"0.1\" byte_order=\"LittleEndian\">\n  \
+             <Collection>\n",
+        );
+        for (st, t) in &self.steps {
+            pvd += &format!(
+                "    <DataSet timestep=\"{t:?}\" group=\"\" part=\"0\" file=\"vtk/particles_{st:08}.vtp\"/>\n"
+            );
+        }
+        pvd += "  </Collection>\n</VTKFile>\n";
+        write_atomic(&self.dir.join("particles.pvd"), |w| w.write_all(pvd.as_bytes()))
+    }
+}

@@ -519,9 +519,19 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
         s.solid_fraction > 0.0 && s.solid_fraction <= 0.3,
         "must be in (0, 0.3] (random placement jams above)",
     )?;
-    check("galileo", s.galileo, s.galileo > 0.0 && s.galileo <= 500.0, "must be in (0, 500]")?;
+    check(
+        "galileo",
+        s.galileo,
+        s.galileo > 0.0 && s.galileo <= 500.0,
+        "must be in (0, 500]",
+    )?;
     check("density_ratio", s.density_ratio, s.density_ratio > 1.0, "must be > 1")?;
-    check("top_offset", s.top_offset, (0.0..2.0).contains(&s.top_offset), "must be in [0, 2) block sizes")?;
+    check(
+        "top_offset",
+        s.top_offset,
+        (0.0..2.0).contains(&s.top_offset),
+        "must be in [0, 2) block sizes",
+    )?;
     check(
         "settling_speed",
         s.settling_speed,
@@ -535,7 +545,10 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
     let (lx, ly) = (cells[0] as f64, cells[1] as f64);
     let lz = cells[2] as f64 - s.top_offset * bs[2] as f64;
     let d = s.diameter;
-    let nu = cfg.fluid.tau.map_or(s.settling_speed * d / s.galileo, |t| (t - 0.5) / 3.0);
+    let nu = cfg
+        .fluid
+        .tau
+        .map_or(s.settling_speed * d / s.galileo, |t| (t - 0.5) / 3.0);
     let tau = 0.5 + 3.0 * nu;
     let u_s = s.galileo * nu / d;
     let g = u_s * u_s / ((s.density_ratio - 1.0) * d);
@@ -582,8 +595,14 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
         let b = v.bodies();
         let n = b.len().max(1) as f64;
         BTreeMap::from([
-            ("mean_height".to_string(), b.iter().map(|x| x.position.z).sum::<f64>() / n / lz),
-            ("max_speed".to_string(), b.iter().map(|x| x.velocity.length()).fold(0.0, f64::max)),
+            (
+                "mean_height".to_string(),
+                b.iter().map(|x| x.position.z).sum::<f64>() / n / lz,
+            ),
+            (
+                "max_speed".to_string(),
+                b.iter().map(|x| x.velocity.length()).fold(0.0, f64::max),
+            ),
             ("bodies".to_string(), b.len() as f64),
         ])
     });
