@@ -19,7 +19,7 @@ use crate::block::Block;
 use crate::domain::DomainSpec;
 use crate::geometry::flags;
 use blockflow_kernels::coupling::{
-    cli_link, link_delta, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0,
+    cli_link, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0,
 };
 use blockflow_kernels::d3q19::{C, OPP, Q};
 use blockflow_kernels::sweep::Segment;
@@ -150,6 +150,18 @@ pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: 
     out
 }
 
+/// δ_q of a link known to cross the surface (x_f outside, x_f + c_q inside): the same root as
+/// [`link_delta`], without re-testing the end points.
+#[inline]
+fn enter_fraction(rel: DVec3, q: usize, radius: f64) -> f64 {
+    let c = DVec3::new(C[q][0] as f64, C[q][1] as f64, C[q][2] as f64);
+    let a = c.length_squared();
+    let b = c.dot(rel);
+    let k = rel.length_squared() - radius * radius;
+    let disc = (b * b - a * k).max(0.0);
+    (k / (-b + disc.sqrt())).clamp(f64::MIN_POSITIVE, 1.0)
+}
+
 /// Maps `bodies` (sorted by id, canonical centres) into block `b`'s overlay (Algorithm 5): owners of
 /// every static fluid cell a sphere covers (the higher id wins where two overlap), fluid segments, links
 /// with δ_q and the cells that turned from solid to fluid since the previous mapping.
@@ -262,6 +274,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
         }
     }
     let mut found: Vec<(usize, usize, usize)> = Vec::new();
+    let offs: [isize; Q] = std::array::from_fn(|q| l.offset(C[q]));
     if any {
         for z in 1..fz - 1 {
             for y in 1..fy - 1 {
@@ -271,8 +284,8 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
                     if !mark[i] || !is_fluid(i) {
                         continue;
                     }
-                    for (q, c) in C.iter().enumerate().skip(1) {
-                        let t = (i as isize + l.offset(*c)) as usize;
+                    for (q, off) in offs.iter().enumerate().skip(1) {
+                        let t = (i as isize + off) as usize;
                         if pc.owner[t] != 0 {
                             found.push((i, q, t));
                         }
@@ -289,9 +302,11 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
         let body = &bodies[k];
         let rel = cell_offset(d, b.origin, l.coords(i), body.position);
         let second = (i as isize - l.offset(C[q])) as usize;
-        let (delta, second) = match (mode, link_delta(rel, q, DVec3::ZERO, body.radius)) {
-            (SurfaceBoundary::Cli, Some(dl)) if is_fluid(second) => (dl, Some(second)),
-            _ => (0.5, None),
+        let (delta, second) = if mode == SurfaceBoundary::Cli && is_fluid(second) {
+            // x_f is outside and x_f + c_q inside the sphere (the mapping says so): the ray enters it.
+            (enter_fraction(rel, q, body.radius), Some(second))
+        } else {
+            (0.5, None)
         };
         pc.links.push(ParticleLink {
             fluid: i,
