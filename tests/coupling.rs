@@ -143,3 +143,19 @@ fn hopper_small_bitwise_identical_for_any_assignment() {
         }
     }
 }
+
+/// The particulate scenes report every part of Algorithm 1 and both checksums.
+#[test]
+fn particulate_summaries_carry_parts_and_both_checksums() {
+    for (file, steps) in [
+        ("hopper-small.toml", "run.steps=20"),
+        ("settling_sphere.toml", "run.steps=20"),
+    ] {
+        let s = run(file, &[steps]);
+        let p = &s.parts_seconds;
+        assert!(p.lbm > 0.0 && p.boundary > 0.0, "{file}");
+        assert!(p.map.is_some_and(|x| x > 0.0) && p.reconstruct.is_some() && p.rigid_body.is_some_and(|x| x > 0.0));
+        assert_eq!(s.checksum.fluid.len(), 16);
+        assert!(s.checksum.particles.as_ref().is_some_and(|c| c.len() == 16));
+    }
+}

@@ -18,9 +18,7 @@ pub mod tasks;
 use crate::block::Block;
 use crate::domain::DomainSpec;
 use crate::geometry::flags;
-use blockflow_kernels::coupling::{
-    cli_link, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0,
-};
+use blockflow_kernels::coupling::{cli_link, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0};
 use blockflow_kernels::d3q19::{C, OPP, Q};
 use blockflow_kernels::sweep::Segment;
 use blockflow_kernels::trt::{moments, post_collision_equilibrium};

@@ -111,7 +111,12 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
     let mut bodies = Vec::new();
     for (i, sp) in s.spheres.iter().enumerate() {
         let vals = sp.centre.iter().chain(&sp.velocity).chain(&sp.angular_velocity);
-        if vals.clone().any(|v| !v.is_finite()) || !(sp.radius > 0.0) || !(sp.density > 0.0) {
+        if vals.clone().any(|v| !v.is_finite())
+            || sp.radius.is_nan()
+            || sp.radius <= 0.0
+            || sp.density.is_nan()
+            || sp.density <= 0.0
+        {
             return config_err(format!(
                 "scene.spheres[{i}]: centre, velocity and angular_velocity must be finite, radius and density > 0"
             ));

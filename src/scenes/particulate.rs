@@ -116,7 +116,7 @@ pub(super) fn build_drag_array(s: &DragArrayConfig, cfg: &Config) -> Result<Scen
         name: "drag_array",
         cells: Some([l, l, l]),
         periodic: [true; 3],
-        default_blocks: [2, 2, 2],
+        default_blocks: [1, 1, 1],
         geometry: Geometry::default(),
         params: TrtParams {
             tau,
