@@ -63,6 +63,29 @@ pub enum Command {
         #[arg(long, default_value = "compact")]
         pin: String,
     },
+    /// Calibrate the workload estimator (paper section 3.3): run the calibration scene for each block size
+    /// and diameter, fit eqs. (10)-(14), write samples.csv, coefficients.toml, calibration.json and figures
+    /// 6-8 to --out.
+    Calibrate {
+        /// Calibration scene (default configs/calibration.toml).
+        #[arg(default_value = "configs/calibration.toml")]
+        scene: PathBuf,
+        /// Block edge lengths in cells, comma-separated (default 12,16; --quick 12; --paper 24,32,48,64).
+        #[arg(long, value_delimiter = ',')]
+        block_sizes: Vec<usize>,
+        /// Sphere diameters in cells, comma-separated (default 4,6; --paper 10,20).
+        #[arg(long, value_delimiter = ',')]
+        diameters: Vec<f64>,
+        /// A short campaign (about two minutes), for tests.
+        #[arg(long)]
+        quick: bool,
+        /// The paper's sizes (block sizes 24, 32, 48, 64; D = 10, 20; 2.5 T), for big machines.
+        #[arg(long, conflicts_with = "quick")]
+        paper: bool,
+        /// Output folder.
+        #[arg(long, default_value = "out/calibration")]
+        out: PathBuf,
+    },
     /// Benchmarks that print tables.
     Bench {
         /// Which benchmark.
@@ -189,6 +212,33 @@ pub fn execute(cli: Cli) -> Result<()> {
                 topo.describe(),
                 describe_placement(processes, threads_per_process, &cores)
             ));
+            Ok(())
+        }
+        Command::Calibrate {
+            scene,
+            block_sizes,
+            diameters,
+            quick,
+            paper,
+            out,
+        } => {
+            if block_sizes.contains(&0) || diameters.iter().any(|d| !(d.is_finite() && *d > 0.0)) {
+                return Err(Error::Config(
+                    "calibrate: --block-sizes and --diameters must be positive".into(),
+                ));
+            }
+            let opts = crate::calibrate::CalibrateOptions {
+                scene,
+                block_sizes,
+                diameters,
+                quick,
+                paper,
+                out: out.clone(),
+            };
+            let report = crate::calibrate::run(&opts)?;
+            let coeffs = crate::estimator::Coefficients::load(&out.join("coefficients.toml"))?;
+            print_out(&crate::calibrate::to_markdown(&report, &coeffs));
+            print_out(&format!("results in {}\n", out.display()));
             Ok(())
         }
         Command::Bench {

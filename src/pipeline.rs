@@ -145,6 +145,9 @@ pub struct Pipeline<T: Real> {
     pub surface: SurfaceBoundary,
     /// Average the hydrodynamic force over two steps.
     pub force_averaging: bool,
+    /// When set, the thread CPU nanoseconds of the last graph run per (step in the run, block) and part
+    /// (index as [`PARTS`]): the per-block part timings m_X of section 3 (set it to `Some(Vec::new())`).
+    pub block_times: Option<Vec<[u64; 6]>>,
     _marker: std::marker::PhantomData<T>,
 }
 
@@ -193,6 +196,7 @@ impl<T: Real> Pipeline<T> {
             trace_bases: Default::default(),
             surface: SurfaceBoundary::Cli,
             force_averaging: true,
+            block_times: None,
             _marker: std::marker::PhantomData,
         }
     }
@@ -446,9 +450,18 @@ impl<T: Real> Pipeline<T> {
             self.current.process_load = vec![0.0; procs];
         }
         let mut durations = Vec::with_capacity(records.len());
+        if let Some(bt) = self.block_times.as_mut() {
+            let nb = sim.blocks.len();
+            bt.clear();
+            bt.resize(k * nb, [0; 6]);
+        }
         for (spec, r) in graph.specs().iter().zip(records) {
             let cpu = r.cpu_ns as f64 * 1e-9;
             self.totals.part_cpu[spec.part as usize] += cpu;
+            if let Some(bt) = self.block_times.as_mut() {
+                let nb = sim.blocks.len();
+                bt[step_of(spec.payload) * nb + spec.block as usize][spec.part as usize] += r.cpu_ns;
+            }
             if spec.part != PART_EXCHANGE {
                 self.current.process_load[spec.owner as usize] += cpu;
             }

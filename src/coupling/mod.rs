@@ -93,8 +93,10 @@ pub struct ParticleCells {
     pub segments: Vec<Segment>,
     /// Interior fluid cells now.
     pub fluid_cells: usize,
-    /// Interior fluid cells with at least one particle link (NB of Table 1, particle part).
+    /// Interior fluid cells with at least one particle link.
     pub near_particle_cells: usize,
+    /// Interior fluid cells next to a wall or a particle (NB of Table 1).
+    pub near_boundary_cells: usize,
     /// The bodies mapped in this step (locals and shadows), sorted by id.
     pub bodies: Vec<MapBody>,
     /// Links from fluid cells into particle cells, in cell order.
@@ -225,6 +227,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
     pc.links.clear();
     pc.fluid_cells = 0;
     pc.near_particle_cells = 0;
+    pc.near_boundary_cells = 0;
     for z in 1..fz - 1 {
         for y in 1..fy - 1 {
             let mut run: Option<Segment> = None;
@@ -241,6 +244,9 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
                     continue;
                 }
                 pc.fluid_cells += 1;
+                if b.flags[i] & flags::NEAR_BOUNDARY != 0 {
+                    pc.near_boundary_cells += 1;
+                }
                 match run.as_mut() {
                     Some(s) => s.len += 1,
                     None => run = Some(Segment { start: i, len: 1 }),
@@ -316,6 +322,9 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
         });
         if i != last_cell {
             pc.near_particle_cells += 1;
+            if b.flags[i] & flags::NEAR_BOUNDARY == 0 {
+                pc.near_boundary_cells += 1;
+            }
             last_cell = i;
         }
     }

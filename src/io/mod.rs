@@ -1,5 +1,6 @@
 //! Output: `summary.json`, the CSV time series and VTK files for ParaView.
 
+pub mod plots;
 pub mod series;
 pub mod summary;
 pub mod vtk;

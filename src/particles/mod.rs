@@ -84,6 +84,8 @@ pub struct Work {
     pub contacts_total: u64,
     /// Largest penetration since the last [`Particles::collect_stats`].
     pub max_penetration_total: f64,
+    /// Owned contacts summed over the sub-steps of the current (or last finished) step.
+    pub contacts_step: u64,
 }
 
 /// Rigid-body state of one block.

@@ -63,6 +63,9 @@ impl Particles {
         apply_forces(&mut w.bodies, &self.params, dt);
         w.contacts = 0;
         w.max_penetration = 0.0;
+        if (g - 1) % self.subcycles as u64 == 0 {
+            w.contacts_step = 0;
+        }
         if w.bodies.is_empty() {
             return;
         }
@@ -103,6 +106,7 @@ impl Particles {
             }
         }
         w.contacts_total += w.contacts as u64;
+        w.contacts_step += w.contacts as u64;
         w.max_penetration_total = w.max_penetration_total.max(w.max_penetration);
         // Velocity changes by body id (slots are sorted by id; periodic images of one body merged).
         let mut order: Vec<usize> = (0..n).filter(|&i| touched[i]).collect();

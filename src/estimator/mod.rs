@@ -1,0 +1,272 @@
+//! Workload estimator of section 3 of Rettinger & Rüde (2019): block quantities (Table 1), per-part
+//! workload functions (eqs. 10–14) and their sum (eq. 15), calibration by linear least squares and the
+//! error statistics of section 3.4.
+//!
+//! - [`Quantities`]: the Table 1 quantities of one block in one step; [`PartTimes`]: the measured (or
+//!   predicted) seconds of the five parts, whose sum is eq. (16).
+//! - [`Coefficients`] ([`coefficients`]): the coefficients of eqs. (10)–(14), their evaluation
+//!   ([`Coefficients::predict`], [`Coefficients::total`]) and the `coefficients.toml` file format.
+//! - [`fit()`] ([`mod@fit`]): one linear least-squares problem per part; [`held_out`]: leave-one-run-out
+//!   validation.
+//! - [`evaluate`] ([`stats`]): E_X = (WL_X − m_X)/m_tot per sample, median and MAD per part and of E_tot,
+//!   and the share of samples with |E_tot| < 10 % (the paper reports over 85 %).
+//!
+//! The coefficients depend on the machine, the implementation and the algorithms (section 3.5): the
+//! paper's Table 2 (SuperMUC, waLBerla) is kept as an example in `configs/coefficients-paper-table2.toml`
+//! and is never ours; `blockflow calibrate` writes `configs/coefficients.toml` for this machine.
+
+pub mod coefficients;
+pub mod fit;
+pub mod stats;
+
+pub use coefficients::{Coefficients, Provenance};
+pub use fit::{fit, held_out};
+pub use stats::{evaluate, mad, median, Evaluation, PartStats};
+
+/// Table 1 quantities of one block in one step (all f64, so that they enter the regressions directly).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Quantities {
+    /// C: total number of cells on the block (eqs. 10–13).
+    pub c: f64,
+    /// F: number of cells flagged as fluid (eqs. 10, 12, 13).
+    pub f: f64,
+    /// NB: number of cells flagged as near boundary (Table 1's B; eq. 11).
+    pub nb: f64,
+    /// P_L: number of local particles (eqs. 12–14).
+    pub pl: f64,
+    /// P_S: number of shadow particles (eqs. 12–14).
+    pub ps: f64,
+    /// K: number of contacts between rigid bodies (eq. 14).
+    pub k: f64,
+    /// S: number of sub-cycles of the rigid-body simulation (the factor of eq. 14).
+    pub s: f64,
+}
+
+/// Measured (or predicted) seconds per part of one block in one step: m_LBM, m_BH, m_Coup1, m_Coup2, m_RB
+/// of section 3.3 (or WL_LBM … WL_RB of eqs. 10–14).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PartTimes {
+    /// LBM collision and stream (Algorithms 2 and 3; eq. 10).
+    pub lbm: f64,
+    /// Boundary handling (Algorithm 4; eq. 11).
+    pub bh: f64,
+    /// Particle mapping, Coup1 (Algorithm 5; eq. 12).
+    pub coup1: f64,
+    /// PDF reconstruction, Coup2 (Algorithm 6; eq. 13).
+    pub coup2: f64,
+    /// Rigid-body simulation, all S sub-cycles (Algorithm 7; eq. 14).
+    pub rb: f64,
+}
+
+impl PartTimes {
+    /// Eq. (16): m_tot = m_LBM + m_BH + m_Coup1 + m_Coup2 + m_RB (eq. 15 for predicted times).
+    pub fn total(&self) -> f64 {
+        self.lbm + self.bh + self.coup1 + self.coup2 + self.rb
+    }
+
+    /// The five parts in the order of [`PARTS`].
+    pub fn as_array(&self) -> [f64; 5] {
+        [self.lbm, self.bh, self.coup1, self.coup2, self.rb]
+    }
+}
+
+/// One calibration sample (section 3.3): which run (block size/diameter combination), step, block, the
+/// Table 1 quantities and the measured times of the five parts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// Index of the calibration run (one block size/diameter combination); [`held_out`] leaves runs out.
+    pub run: usize,
+    /// Time step.
+    pub step: u64,
+    /// Block id.
+    pub block: usize,
+    /// Table 1 quantities.
+    pub q: Quantities,
+    /// Measured seconds per part.
+    pub m: PartTimes,
+}
+
+/// Names of the five parts (eqs. 10–14), in the order used everywhere in this module: TOML tables, the
+/// keys of [`Evaluation::per_part`] and [`PartTimes::as_array`].
+pub const PARTS: [&str; 5] = ["lbm", "bh", "coup1", "coup2", "rb"];
+
+/// Regressors of eq. (10): C, F, 1 (multiplied by a1, a2, a3).
+pub(crate) fn row_lbm(q: &Quantities) -> [f64; 3] {
+    [q.c, q.f, 1.0]
+}
+
+/// Regressors of eq. (11): C, NB, 1.
+pub(crate) fn row_bh(q: &Quantities) -> [f64; 3] {
+    [q.c, q.nb, 1.0]
+}
+
+/// Regressors of eqs. (12) and (13): C, F, P_L, P_S, 1.
+pub(crate) fn row_coup(q: &Quantities) -> [f64; 5] {
+    [q.c, q.f, q.pl, q.ps, 1.0]
+}
+
+/// Regressors of eq. (14), the factor S multiplied in: S·(P_L+P_S)², S·P_L, S·P_S, S·K, S.
+pub(crate) fn row_rb(q: &Quantities) -> [f64; 5] {
+    let p = q.pl + q.ps;
+    [q.s * p * p, q.s * q.pl, q.s * q.ps, q.s * q.k, q.s]
+}
+
+/// Regressors of part `i` (index into [`PARTS`]) as a vector.
+pub(crate) fn row(part: usize, q: &Quantities) -> Vec<f64> {
+    match part {
+        0 => row_lbm(q).to_vec(),
+        1 => row_bh(q).to_vec(),
+        2 | 3 => row_coup(q).to_vec(),
+        4 => row_rb(q).to_vec(),
+        _ => unreachable!("part index {part} out of range"),
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod testutil {
+    //! Deterministic synthetic samples for the tests of this module (splitmix64; no `rand`).
+
+    use super::*;
+
+    /// splitmix64 (Steele, Lea, Flood 2014): a tiny deterministic generator.
+    pub struct SplitMix64(pub u64);
+
+    impl SplitMix64 {
+        /// Next 64 random bits.
+        pub fn next_u64(&mut self) -> u64 {
+            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = self.0;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^ (z >> 31)
+        }
+
+        /// Uniform in [0, 1).
+        pub fn unit(&mut self) -> f64 {
+            (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+        }
+
+        /// Uniform integer in [0, n).
+        pub fn below(&mut self, n: u64) -> u64 {
+            self.next_u64() % n
+        }
+
+        /// Approximately standard normal: the sum of 12 uniforms minus 6 (mean 0, variance 1).
+        pub fn normal(&mut self) -> f64 {
+            (0..12).map(|_| self.unit()).sum::<f64>() - 6.0
+        }
+    }
+
+    /// Positive "true" coefficients of a plausible size (seconds; loosely Table 2 ×1e-3 with positive
+    /// intercepts), used to synthesise measurements.
+    pub fn truth() -> Coefficients {
+        Coefficients {
+            lbm: [1.0e-8, 1.6e-7, 2.0e-5],
+            bh: [6.6e-9, 7.0e-7, 1.0e-5],
+            coup1: [3.1e-9, 2.4e-10, 1.4e-5, 2.8e-5, 5.0e-6],
+            coup2: [6.0e-9, 3.9e-9, 8.8e-6, 2.5e-5, 4.0e-6],
+            rb: [1.2e-9, 9.6e-7, 2.8e-7, 1.5e-6, 1.9e-5],
+            floor: 0.0,
+            provenance: Provenance::default(),
+        }
+    }
+
+    /// Raw values of eqs. (10)–(14) (no floor), the synthetic measurement before noise.
+    pub fn exact(c: &Coefficients, q: &Quantities) -> PartTimes {
+        let dot = |a: &[f64], r: &[f64]| a.iter().zip(r).map(|(a, r)| a * r).sum::<f64>();
+        PartTimes {
+            lbm: dot(&c.lbm, &row_lbm(q)),
+            bh: dot(&c.bh, &row_bh(q)),
+            coup1: dot(&c.coup1, &row_coup(q)),
+            coup2: dot(&c.coup2, &row_coup(q)),
+            rb: dot(&c.rb, &row_rb(q)),
+        }
+    }
+
+    /// `n` samples over `runs` runs with block sizes 24..64, random fluid fraction, boundary cells,
+    /// particles, contacts and S ∈ {1, 5, 10, 20}; measured times = `c`'s raw prediction times
+    /// (1 + `rel_noise`·N(0,1)) per part.
+    pub fn synthetic(c: &Coefficients, n: usize, runs: usize, rel_noise: f64, seed: u64) -> Vec<Sample> {
+        let mut g = SplitMix64(seed);
+        let sizes = [24.0f64, 32.0, 48.0, 64.0];
+        let subcycles = [1.0, 5.0, 10.0, 20.0];
+        (0..n)
+            .map(|i| {
+                let run = i % runs;
+                let bs = sizes[run % sizes.len()];
+                let cells = bs * bs * bs;
+                let f = (cells * g.unit()).floor();
+                let nb = (0.3 * f * g.unit()).floor();
+                let pl = g.below(40) as f64;
+                let ps = g.below(60) as f64;
+                let k = g.below(3 * (pl + ps) as u64 + 1) as f64;
+                let s = subcycles[g.below(4) as usize];
+                let q = Quantities {
+                    c: cells,
+                    f,
+                    nb,
+                    pl,
+                    ps,
+                    k,
+                    s,
+                };
+                let e = exact(c, &q);
+                let mut noisy = |x: f64| x * (1.0 + rel_noise * g.normal());
+                let m = PartTimes {
+                    lbm: noisy(e.lbm),
+                    bh: noisy(e.bh),
+                    coup1: noisy(e.coup1),
+                    coup2: noisy(e.coup2),
+                    rb: noisy(e.rb),
+                };
+                Sample {
+                    run,
+                    step: (i / runs) as u64,
+                    block: i % 80,
+                    q,
+                    m,
+                }
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn total_is_the_sum_of_the_five_parts_eq16() {
+        let m = PartTimes {
+            lbm: 1.0,
+            bh: 2.0,
+            coup1: 4.0,
+            coup2: 8.0,
+            rb: 16.0,
+        };
+        assert_eq!(m.total(), 31.0);
+        assert_eq!(m.as_array(), [1.0, 2.0, 4.0, 8.0, 16.0]);
+    }
+
+    #[test]
+    fn rb_regressors_carry_the_factor_s_eq14() {
+        let q = Quantities {
+            pl: 2.0,
+            ps: 3.0,
+            k: 4.0,
+            s: 10.0,
+            ..Default::default()
+        };
+        assert_eq!(row_rb(&q), [250.0, 20.0, 30.0, 40.0, 10.0]);
+        assert_eq!(row(4, &q), vec![250.0, 20.0, 30.0, 40.0, 10.0]);
+        assert_eq!(row(2, &q), row(3, &q));
+    }
+
+    #[test]
+    fn splitmix64_reference_values() {
+        // First outputs of splitmix64 seeded with 1234567 (the reference implementation's test vector).
+        let mut g = testutil::SplitMix64(1234567);
+        assert_eq!(g.next_u64(), 6457827717110365317);
+        assert_eq!(g.next_u64(), 3203168211198807973);
+    }
+}
