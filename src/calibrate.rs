@@ -127,7 +127,11 @@ fn preset(o: &CalibrateOptions) -> (Vec<usize>, Vec<f64>, f64) {
         (vec![12, 16], vec![4.0, 6.0], 2.5)
     };
     (
-        if o.block_sizes.is_empty() { bs } else { o.block_sizes.clone() },
+        if o.block_sizes.is_empty() {
+            bs
+        } else {
+            o.block_sizes.clone()
+        },
         if o.diameters.is_empty() { d } else { o.diameters.clone() },
         dur,
     )
@@ -208,7 +212,9 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let mut never_fluid: Vec<Vec<bool>> = Vec::new();
     let mut runs = Vec::new();
     let mut fig6: Vec<plots::BlockSeries> = Vec::new();
-    let mut csv = String::from("run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n");
+    let mut csv = String::from(
+        "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
+    );
     for (r, (bs, d, cfg, steps)) in plans.iter().enumerate() {
         bar.set_message(format!("b_s = {bs}, D = {d}"));
         let ts = Instant::now();
@@ -248,8 +254,8 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
                     "{r},{bs},{d},{},{t_star:.6},{b},{row},{},{},{},{},{},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e}\n",
                     sim.step, q.c, q.f, q.nb, q.pl, q.ps, q.k, q.s, m.lbm, m.bh, m.coup1, m.coup2, m.rb
                 );
-                if r == 0 {
-                    fig6[b].points.push((t_star, q.f, m.lbm));
+                if let Some(series) = fig6.get_mut(b).filter(|_| r == 0) {
+                    series.points.push((t_star, q.f, m.lbm));
                 }
                 samples.push(Sample {
                     run: r,
@@ -301,8 +307,16 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let ev: Evaluation = estimator::evaluate(&coeffs, &samples);
     let ev_fluid = estimator::evaluate(&coeffs, &fluid_only);
     let multi_run = plans.len() > 1;
-    let held = if multi_run { estimator::held_out(&samples, prov.clone()) } else { f64::NAN };
-    let held_fluid = if multi_run { estimator::held_out(&fluid_only, prov) } else { f64::NAN };
+    let held = if multi_run {
+        estimator::held_out(&samples, prov.clone())
+    } else {
+        f64::NAN
+    };
+    let held_fluid = if multi_run {
+        estimator::held_out(&fluid_only, prov)
+    } else {
+        f64::NAN
+    };
     let mut share = BTreeMap::new();
     share.insert("in_sample".to_string(), ev.share_within_10pct);
     share.insert("held_out".to_string(), held);
@@ -394,7 +408,12 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
     for (k, v) in &r.share_within_10pct {
         s += &format!("- {k}: {:.1} %\n", 100.0 * v);
     }
-    s += &format!("\n{} samples from {} runs in {:.0} s\n", r.samples, r.runs.len(), r.seconds);
+    s += &format!(
+        "\n{} samples from {} runs in {:.0} s\n",
+        r.samples,
+        r.runs.len(),
+        r.seconds
+    );
     s
 }
 

@@ -368,6 +368,29 @@ pub struct BalanceConfig {
     /// Steps per balancing / measurement interval.
     #[serde(default = "d_interval")]
     pub interval: u64,
+    /// Block weight for the assignment: `"cells"` (fluid cells; default) or `"estimator"` (eq. 15 with
+    /// `balance.coefficients`).
+    #[serde(default)]
+    pub weights: Weights,
+    /// Coefficients file of the estimator (written by `blockflow calibrate`); used with
+    /// `weights = "estimator"`.
+    #[serde(default = "d_coefficients")]
+    pub coefficients: String,
+}
+
+/// `balance.weights`: what a block weighs.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Weights {
+    /// Fluid cells (cells when the fluid is off).
+    #[default]
+    Cells,
+    /// The workload estimate of eq. (15) from the block's Table 1 quantities.
+    Estimator,
+}
+
+fn d_coefficients() -> String {
+    "configs/coefficients.toml".to_string()
 }
 
 fn d_interval() -> u64 {
@@ -379,6 +402,8 @@ impl Default for BalanceConfig {
         BalanceConfig {
             strategy: Strategy::None,
             interval: d_interval(),
+            weights: Weights::Cells,
+            coefficients: d_coefficients(),
         }
     }
 }

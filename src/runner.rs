@@ -282,6 +282,42 @@ pub fn make_executor(cfg: &Config) -> Result<Executor> {
     .map_err(|e| Error::Config(format!("[processes]: {e}")))
 }
 
+/// Block weights of `balance.weights`: fluid cells, or the estimate of eq. (15) with the coefficients
+/// of `balance.coefficients` (the file is read and checked here; errors name the file and key).
+pub fn block_weights<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<f64>> {
+    match cfg.balance.weights {
+        crate::config::Weights::Cells => {
+            let dry = sim.fluid_cells() == 0;
+            Ok(sim
+                .blocks
+                .iter()
+                .map(|b| if dry { b.layout.interior_cells() } else { b.current_fluid_cells() } as f64)
+                .collect())
+        }
+        crate::config::Weights::Estimator => {
+            let c = crate::estimator::Coefficients::load(Path::new(&cfg.balance.coefficients)).map_err(|e| {
+                Error::Config(format!(
+                    "balance.coefficients: {e}; run `blockflow calibrate` to write one"
+                ))
+            })?;
+            Ok((0..sim.blocks.len())
+                .map(|b| c.total(&crate::calibrate::quantities(sim, b)))
+                .collect())
+        }
+    }
+}
+
+/// Owner process of every block by `balance.weights` (see [`block_weights`]): curve order
+/// (`balance.strategy`; `none` is the static Hilbert split), greedy prefix split.
+pub fn assignment_weighted<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<u32>> {
+    let curve = match cfg.balance.strategy {
+        Strategy::None | Strategy::Hilbert => Curve::Hilbert,
+        Strategy::Morton => Curve::Morton,
+    };
+    let weights = block_weights(cfg, sim)?;
+    Ok(balance::assign(sim.domain.blocks, &weights, cfg.processes.count, curve))
+}
+
 /// Owner process of every block: curve order (`balance.strategy`; `none` is the static Hilbert split),
 /// greedy prefix split by fluid-cell count (cell count in scenes without fluid).
 pub fn assignment<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Vec<u32> {
@@ -365,7 +401,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     std::fs::write(&eff, cfg.to_toml()).map_err(|e| io_err(&eff, e))?;
     let mut sim = build_sim::<T>(cfg, &scene)?;
     let exec = make_executor(cfg)?;
-    let owners = assignment(cfg, &sim);
+    let owners = assignment_weighted(cfg, &sim)?;
     let mut pipe = Pipeline::new(&sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
     pipe.surface = cfg.particles.boundary;
     pipe.force_averaging = cfg.particles.force_averaging;

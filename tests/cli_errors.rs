@@ -216,3 +216,39 @@ fn runaway_particles_stop_the_run() {
     let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
     assert!(summary.contains("\"status\": \"unstable\""));
 }
+
+/// A malformed, incomplete or mismatched coefficients file stops `run` with one line naming the file
+/// and the key.
+#[test]
+fn bad_coefficient_files_name_the_key() {
+    let dir = tmp("coefficients");
+    let good = std::fs::read_to_string(configs().join("coefficients-paper-table2.toml")).unwrap();
+    let cal = configs().join("calibration.toml");
+    let cases = [
+        ("missing.toml", good.replacen("a3 =", "# a3 =", 1), "a3"),
+        ("extra.toml", good.replacen("[bh]", "[bh]\na4 = 1.0", 1), "a4"),
+        ("nan.toml", good.replacen("floor = ", "floor = nan #", 1), "floor"),
+        ("garbage.toml", "\u{1}\u{2} not toml".to_string(), "garbage.toml"),
+    ];
+    for (name, text, key) in cases {
+        let p = write(&dir, name, &text);
+        let set = format!("balance.coefficients={}", p.display());
+        fails_cleanly(
+            &cal,
+            &["--set", "balance.weights=estimator", "--set", &set, "--steps", "1"],
+            &[name, key],
+        );
+    }
+    fails_cleanly(
+        &cal,
+        &[
+            "--set",
+            "balance.weights=estimator",
+            "--set",
+            "balance.coefficients=/nonexistent/c.toml",
+            "--steps",
+            "1",
+        ],
+        &["/nonexistent/c.toml"],
+    );
+}

@@ -63,7 +63,7 @@ impl Particles {
         apply_forces(&mut w.bodies, &self.params, dt);
         w.contacts = 0;
         w.max_penetration = 0.0;
-        if (g - 1) % self.subcycles as u64 == 0 {
+        if (g - 1).is_multiple_of(self.subcycles as u64) {
             w.contacts_step = 0;
         }
         if w.bodies.is_empty() {

@@ -1,0 +1,202 @@
+//! Workload estimator (issue #7): the Table 1 quantities the engine keeps agree with a brute-force
+//! recount; `blockflow calibrate --quick` runs end to end and `blockflow run` loads what it wrote.
+
+mod common;
+use blockflow::calibrate::quantities;
+use blockflow::pipeline::Pipeline;
+use blockflow::runner::{assignment, make_executor};
+use common::{cfg, sim64, tmp};
+use glam::DVec3;
+use std::process::Command;
+
+fn min_image(mut d: DVec3, len: [f64; 3], periodic: [bool; 3]) -> DVec3 {
+    for a in 0..3 {
+        if periodic[a] {
+            d[a] -= len[a] * (d[a] / len[a]).round();
+        }
+    }
+    d
+}
+
+/// C, F, NB, P_L, P_S, K and S of every block of the calibration scene equal a brute-force recount from
+/// the body positions at the start of the last step (one sub-step per step, so the rigid-body quantities
+/// of that step come from those positions too).
+#[test]
+fn block_quantities_match_a_brute_force_recount() {
+    let sets = [
+        "domain.block_size=[12,12,12]",
+        "scene.diameter=4",
+        "particles.subcycles=1",
+        "processes.steps_per_graph=1",
+        "scene.duration=0.1",
+    ];
+    let c = cfg("calibration.toml", &sets);
+    let mut sim = sim64("calibration.toml", &sets);
+    let owners = assignment(&c, &sim);
+    let mut pipe = Pipeline::new(&sim, make_executor(&c).unwrap(), owners, 1, 1000);
+    pipe.advance(&mut sim, 29).unwrap();
+    let parts = sim.particles.as_ref().unwrap();
+    let bodies = parts.bodies(29);
+    let halo = parts.halo();
+    pipe.advance(&mut sim, 1).unwrap();
+    let d = sim.domain;
+    let n = d.cells();
+    let len = [n[0] as f64, n[1] as f64, n[2] as f64];
+    let parts = sim.particles.as_ref().unwrap();
+    let covered = |g: [i64; 3]| {
+        let x = DVec3::new(g[0] as f64 + 0.5, g[1] as f64 + 0.5, g[2] as f64 + 0.5);
+        bodies
+            .iter()
+            .any(|b| min_image(x - b.position, len, d.periodic).length_squared() <= b.radius * b.radius)
+    };
+    let mut total_k = 0.0;
+    for blk in &sim.blocks {
+        let q = quantities(&sim, blk.id);
+        let l = blk.layout;
+        let (mut f, mut nb) = (0.0, 0.0);
+        let fluid_at = |x: usize, y: usize, z: usize| {
+            let i = l.idx(x, y, z);
+            let g = d.wrap([
+                (blk.origin[0] + x) as i64 - 1,
+                (blk.origin[1] + y) as i64 - 1,
+                (blk.origin[2] + z) as i64 - 1,
+            ]);
+            blk.flags[i] & blockflow::geometry::flags::FLUID != 0 && !covered(g)
+        };
+        for z in 1..=l.size[2] {
+            for y in 1..=l.size[1] {
+                for x in 1..=l.size[0] {
+                    if !fluid_at(x, y, z) {
+                        continue;
+                    }
+                    f += 1.0;
+                    let near = blockflow_kernels::d3q19::C.iter().skip(1).any(|c| {
+                        !fluid_at(
+                            (x as i64 + c[0] as i64) as usize,
+                            (y as i64 + c[1] as i64) as usize,
+                            (z as i64 + c[2] as i64) as usize,
+                        )
+                    });
+                    if near {
+                        nb += 1.0;
+                    }
+                }
+            }
+        }
+        assert_eq!(q.c, (l.size[0] * l.size[1] * l.size[2]) as f64);
+        assert_eq!(q.f, f, "F of block {}", blk.id);
+        assert_eq!(q.nb, nb, "NB of block {}", blk.id);
+        if !parts.active[blk.id] {
+            assert_eq!((q.pl, q.ps, q.k, q.s), (0.0, 0.0, 0.0, 0.0));
+            continue;
+        }
+        let pb = &parts.blocks[blk.id];
+        let home = |p: DVec3| parts.home(p) == blk.id;
+        let pl = bodies.iter().filter(|b| home(b.position)).count() as f64;
+        let mut ps = 0.0;
+        for b in &bodies {
+            for sx in [-1.0, 0.0, 1.0] {
+                for sy in [-1.0, 0.0, 1.0] {
+                    let shift = DVec3::new(sx * len[0], sy * len[1], 0.0);
+                    let p = b.position + shift;
+                    let dist = (pb.lo - p).max(p - pb.hi).max(DVec3::ZERO).length();
+                    if dist <= b.radius + halo && !(shift == DVec3::ZERO && home(b.position)) {
+                        ps += 1.0;
+                    }
+                }
+            }
+        }
+        // Owned contacts: pairs whose lower-id body is homed here, and plane contacts of local bodies.
+        let mut k = 0.0;
+        for (i, a) in bodies.iter().enumerate() {
+            if !home(a.position) {
+                continue;
+            }
+            for b in &bodies[i + 1..] {
+                let dist = min_image(a.position - b.position, len, d.periodic).length();
+                if a.radius + b.radius - dist > 0.0 {
+                    k += 1.0;
+                }
+            }
+            for pl in &pb.planes {
+                if a.radius - pl.distance(a.position) > 0.0 {
+                    k += 1.0;
+                }
+            }
+        }
+        assert_eq!(q.pl, pl, "P_L of block {}", blk.id);
+        assert_eq!(q.ps, ps, "P_S of block {}", blk.id);
+        assert_eq!(q.k, k, "K of block {}", blk.id);
+        assert_eq!(q.s, 1.0);
+        total_k += k;
+    }
+    assert!(total_k > 0.0, "the recount saw contacts");
+}
+
+fn blockflow(args: &[&str]) -> (i32, String, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+        .args(args)
+        .output()
+        .unwrap();
+    (
+        o.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&o.stdout).to_string(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+/// `calibrate --quick` writes its files with the stable names, and `blockflow run` with
+/// `balance.weights = "estimator"` loads the coefficients it wrote.
+#[test]
+fn calibrate_quick_end_to_end_and_run_loads_the_file() {
+    let out = tmp("calibrate-quick");
+    let scene = format!("{}/configs/calibration.toml", env!("CARGO_MANIFEST_DIR"));
+    let (code, stdout, stderr) = blockflow(&["calibrate", &scene, "--quick", "--out", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("in_sample") && stdout.contains("held_out"), "{stdout}");
+    for f in [
+        "samples.csv",
+        "coefficients.toml",
+        "calibration.json",
+        "figure6.png",
+        "figure7.png",
+        "figure8.png",
+    ] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("calibration.json")).unwrap()).unwrap();
+    for k in ["in_sample", "held_out"] {
+        let v = json["share_within_10pct"][k].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&v), "{k} = {v}");
+    }
+    for part in ["lbm", "bh", "coup1", "coup2", "rb", "total"] {
+        assert!(
+            json["median"][part].is_number() && json["mad"][part].is_number(),
+            "{part}"
+        );
+    }
+    let coeffs = out.join("coefficients.toml");
+    let run_out = tmp("run-estimator");
+    let set = format!("balance.coefficients={}", coeffs.display());
+    let (code, _, stderr) = blockflow(&[
+        "run",
+        &scene,
+        "--set",
+        "domain.block_size=[12,12,12]",
+        "--set",
+        "scene.diameter=4",
+        "--set",
+        "balance.weights=estimator",
+        "--set",
+        &set,
+        "--processes",
+        "2",
+        "--steps",
+        "3",
+        "--out",
+        run_out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(run_out.join("summary.json").exists());
+}
