@@ -277,7 +277,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
             }
         }
     }
-    let mut found: Vec<(usize, usize, usize)> = Vec::new();
+    let mut found: Vec<(usize, usize, usize, [usize; 3])> = Vec::new();
     let offs: [isize; Q] = std::array::from_fn(|q| l.offset(C[q]));
     if any {
         for z in 1..fz - 1 {
@@ -291,7 +291,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
                     for (q, off) in offs.iter().enumerate().skip(1) {
                         let t = (i as isize + off) as usize;
                         if pc.owner[t] != 0 {
-                            found.push((i, q, t));
+                            found.push((i, q, t, [x, y, z]));
                         }
                     }
                 }
@@ -300,11 +300,18 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
     }
     pc.mark = mark;
     let slot = |id: u64| bodies.binary_search_by_key(&id, |m| m.id).ok();
+    let cells_f = [cells[0] as f64, cells[1] as f64, cells[2] as f64];
     let mut last_cell = usize::MAX;
-    for (i, q, t) in found {
+    for (i, q, t, xyz) in found {
         let Some(k) = slot(pc.owner[t] - 1) else { continue };
         let body = &bodies[k];
-        let rel = cell_offset(d, b.origin, l.coords(i), body.position);
+        // Offset of the fluid cell centre from the body centre, nearest image. Only this block uses a
+        // link, so plain local arithmetic suffices (no division, unlike `cell_offset`).
+        let mut rel = DVec3::ZERO;
+        for a in 0..3 {
+            let x = (b.origin[a] + xyz[a]) as f64 - 0.5;
+            rel[a] = min_image(x - body.position[a], cells_f[a], d.periodic[a]);
+        }
         let second = (i as isize - l.offset(C[q])) as usize;
         let (delta, second) = if mode == SurfaceBoundary::Cli && is_fluid(second) {
             // x_f is outside and x_f + c_q inside the sphere (the mapping says so): the ray enters it.
