@@ -96,8 +96,11 @@ pub struct IntervalStats {
     pub wall_seconds: f64,
     /// Modeled seconds: the recorded graphs replayed with measured CPU durations on P×T dedicated cores.
     pub modeled_seconds: f64,
-    /// Workload (CPU seconds of lbm + boundary tasks, as in eq. 16 without communication) per owner process.
+    /// Workload (CPU seconds of every task but communication, eq. 16) per owner process.
     pub process_load: Vec<f64>,
+    /// The same per block (m_tot of each block summed over the interval, in block-id order): the
+    /// `measured` block weight and the corrector's measurement.
+    pub block_load: Vec<f64>,
     /// Load imbalance eq. (18) of `process_load`.
     pub imbalance: f64,
     /// Bytes packed into cross-process messages.
@@ -449,6 +452,9 @@ impl<T: Real> Pipeline<T> {
         if self.current.process_load.len() != procs {
             self.current.process_load = vec![0.0; procs];
         }
+        if self.current.block_load.len() != sim.blocks.len() {
+            self.current.block_load = vec![0.0; sim.blocks.len()];
+        }
         let mut durations = Vec::with_capacity(records.len());
         if let Some(bt) = self.block_times.as_mut() {
             let nb = sim.blocks.len();
@@ -464,6 +470,7 @@ impl<T: Real> Pipeline<T> {
             }
             if spec.part != PART_EXCHANGE {
                 self.current.process_load[spec.owner as usize] += cpu;
+                self.current.block_load[spec.block as usize] += cpu;
             }
             durations.push(r.cpu_ns);
         }

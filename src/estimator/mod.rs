@@ -18,10 +18,12 @@
 pub mod coefficients;
 pub mod fit;
 pub mod stats;
+pub mod weights;
 
 pub use coefficients::{Coefficients, Provenance};
 pub use fit::{fit, held_out};
 pub use stats::{evaluate, mad, median, Evaluation, PartStats};
+pub use weights::{measured, Corrector};
 
 /// Table 1 quantities of one block in one step (all f64, so that they enter the regressions directly).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
