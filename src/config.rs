@@ -368,8 +368,10 @@ pub struct BalanceConfig {
     /// Steps per balancing / measurement interval.
     #[serde(default = "d_interval")]
     pub interval: u64,
-    /// Block weight for the assignment: `"cells"` (fluid cells; default) or `"estimator"` (eq. 15 with
-    /// `balance.coefficients`).
+    /// Block weight: `"cells"` (fluid cells; default), `"estimator"` (eq. 15 with `balance.coefficients`),
+    /// `"measured"` (the block's m_tot over the last interval) or `"corrected"` (the estimate times the
+    /// smoothed measured/predicted ratio). With `strategy = "hilbert"` or `"morton"` the blocks are
+    /// redistributed with these weights at the end of every interval; `"none"` never moves a block.
     #[serde(default)]
     pub weights: Weights,
     /// Coefficients file of the estimator (written by `blockflow calibrate`); used with
@@ -387,6 +389,11 @@ pub enum Weights {
     Cells,
     /// The workload estimate of eq. (15) from the block's Table 1 quantities.
     Estimator,
+    /// The block's own measured m_tot over the last interval (cells for the initial assignment).
+    Measured,
+    /// The estimate scaled by the block's smoothed measured/predicted ratio (section 3.5; see
+    /// `estimator::weights`; the plain estimate for the initial assignment).
+    Corrected,
 }
 
 fn d_coefficients() -> String {

@@ -148,6 +148,8 @@ pub struct Pipeline<T: Real> {
     pub surface: SurfaceBoundary,
     /// Average the hydrodynamic force over two steps.
     pub force_averaging: bool,
+    /// Dynamic load balancing at the end of every interval (absent: the assignment never changes).
+    pub balancer: Option<crate::balance::dynamic::Balancer>,
     /// When set, the thread CPU nanoseconds of the last graph run per (step in the run, block) and part
     /// (index as [`PARTS`]): the per-block part timings m_X of section 3 (set it to `Some(Vec::new())`).
     pub block_times: Option<Vec<[u64; 6]>>,
@@ -160,26 +162,7 @@ impl<T: Real> Pipeline<T> {
     pub fn new(sim: &Simulation<T>, exec: Executor, owners: Vec<u32>, max_k: usize, interval: u64) -> Self {
         assert_eq!(owners.len(), sim.blocks.len());
         let steal_global = exec.steal() == blockflow_scheduler::executor::Steal::Global;
-        let mut outgoing = vec![Vec::new(); sim.blocks.len()];
-        let mut slot_of = Vec::with_capacity(sim.blocks.len());
-        let mut nslots = 0;
-        for b in &sim.blocks {
-            let mut v = Vec::with_capacity(b.recv.len());
-            for (r, g) in b.recv.iter().enumerate() {
-                if owners[g.from] != owners[b.id] {
-                    outgoing[g.from].push(Outgoing {
-                        receiver: b.id,
-                        recv: r,
-                        slot: nslots,
-                    });
-                    v.push(Some(nslots));
-                    nslots += 1;
-                } else {
-                    v.push(None);
-                }
-            }
-            slot_of.push(v);
-        }
+        let (outgoing, slot_of, nslots) = message_plan(sim, &owners);
         Pipeline {
             exec,
             owners,
@@ -200,8 +183,27 @@ impl<T: Real> Pipeline<T> {
             surface: SurfaceBoundary::Cli,
             force_averaging: true,
             block_times: None,
+            balancer: None,
             _marker: std::marker::PhantomData,
         }
+    }
+
+    /// Moves blocks to new owners: recomputes which ghost regions travel as messages and drops the
+    /// compiled graphs (the next run compiles for the new owners). Block data stays where it is: on one
+    /// node the move is a change of owner; the numerics never see it. Returns how many blocks moved.
+    pub fn set_owners(&mut self, sim: &Simulation<T>, owners: Vec<u32>) -> usize {
+        assert_eq!(owners.len(), sim.blocks.len());
+        let moved = owners.iter().zip(&self.owners).filter(|(a, b)| a != b).count();
+        if moved == 0 {
+            return 0;
+        }
+        let (outgoing, slot_of, nslots) = message_plan(sim, &owners);
+        self.outgoing = outgoing;
+        self.slot_of = slot_of;
+        self.slots = (0..nslots).map(|_| Mutex::new(Vec::new())).collect();
+        self.owners = owners;
+        self.graphs.clear();
+        moved
     }
 
     /// Records a Chrome trace of every run from now on; events carry the absolute step of their task.
@@ -304,6 +306,9 @@ impl<T: Real> Pipeline<T> {
                 }
             }
             self.run_graph(sim, k).map_err(Error::Unstable)?;
+            if let Some(bal) = self.balancer.as_mut() {
+                bal.after_run(sim, k);
+            }
             if let Some(parts) = sim.particles.as_mut() {
                 parts.collect_stats((k * parts.subcycles) as u64);
                 if let Some(e) = parts.take_error() {
@@ -313,6 +318,15 @@ impl<T: Real> Pipeline<T> {
             left -= k as u64;
             if sim.step.is_multiple_of(self.interval) {
                 self.close_interval(sim.step);
+                if let Some(mut bal) = self.balancer.take() {
+                    let t0 = Instant::now();
+                    let load = self.intervals.last().map(|i| i.block_load.clone()).unwrap_or_default();
+                    let owners = bal.rebalance(sim, &load);
+                    let moved = self.set_owners(sim, owners);
+                    bal.migrated += moved as u64;
+                    bal.seconds += t0.elapsed().as_secs_f64();
+                    self.balancer = Some(bal);
+                }
             }
         }
         Ok(())
@@ -497,6 +511,35 @@ impl<T: Real> Pipeline<T> {
         self.totals.local_copies += local * k as u64;
         self.current.message_bytes += bytes * k as u64;
     }
+}
+
+/// Which ghost regions cross processes under `owners`: outgoing messages per sender, the slot of every
+/// (receiver, region) that is remote, and the number of slots.
+/// Outgoing messages per sender, the slot of every remote (receiver, region), and the slot count.
+type MessagePlan = (Vec<Vec<Outgoing>>, Vec<Vec<Option<usize>>>, usize);
+
+fn message_plan<T: Real>(sim: &Simulation<T>, owners: &[u32]) -> MessagePlan {
+    let mut outgoing = vec![Vec::new(); sim.blocks.len()];
+    let mut slot_of = Vec::with_capacity(sim.blocks.len());
+    let mut nslots = 0;
+    for b in &sim.blocks {
+        let mut v = Vec::with_capacity(b.recv.len());
+        for (r, g) in b.recv.iter().enumerate() {
+            if owners[g.from] != owners[b.id] {
+                outgoing[g.from].push(Outgoing {
+                    receiver: b.id,
+                    recv: r,
+                    slot: nslots,
+                });
+                v.push(Some(nslots));
+                nslots += 1;
+            } else {
+                v.push(None);
+            }
+        }
+        slot_of.push(v);
+    }
+    (outgoing, slot_of, nslots)
 }
 
 fn region_cells<T: Real>(b: &Block<T>, off: [i32; 3]) -> usize {

@@ -285,8 +285,10 @@ pub fn make_executor(cfg: &Config) -> Result<Executor> {
 /// Block weights of `balance.weights`: fluid cells, or the estimate of eq. (15) with the coefficients
 /// of `balance.coefficients` (the file is read and checked here; errors name the file and key).
 pub fn block_weights<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<f64>> {
+    use crate::config::Weights;
     match cfg.balance.weights {
-        crate::config::Weights::Cells => {
+        // Nothing is measured before the first interval: `measured` starts from cells.
+        Weights::Cells | Weights::Measured => {
             let dry = sim.fluid_cells() == 0;
             Ok(sim
                 .blocks
@@ -294,17 +296,22 @@ pub fn block_weights<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<f
                 .map(|b| if dry { b.layout.interior_cells() } else { b.current_fluid_cells() } as f64)
                 .collect())
         }
-        crate::config::Weights::Estimator => {
-            let c = crate::estimator::Coefficients::load(Path::new(&cfg.balance.coefficients)).map_err(|e| {
-                Error::Config(format!(
-                    "balance.coefficients: {e}; run `blockflow calibrate` to write one"
-                ))
-            })?;
+        Weights::Estimator | Weights::Corrected => {
+            let c = load_coefficients(cfg)?;
             Ok((0..sim.blocks.len())
                 .map(|b| c.total(&crate::calibrate::quantities(sim, b)))
                 .collect())
         }
     }
+}
+
+/// The estimator coefficients of `balance.coefficients`; the error names the file and key.
+pub fn load_coefficients(cfg: &Config) -> Result<crate::estimator::Coefficients> {
+    crate::estimator::Coefficients::load(Path::new(&cfg.balance.coefficients)).map_err(|e| {
+        Error::Config(format!(
+            "balance.coefficients: {e}; run `blockflow calibrate` to write one"
+        ))
+    })
 }
 
 /// Owner process of every block by `balance.weights` (see [`block_weights`]): curve order
@@ -405,6 +412,24 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let mut pipe = Pipeline::new(&sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
     pipe.surface = cfg.particles.boundary;
     pipe.force_averaging = cfg.particles.force_averaging;
+    if cfg.balance.strategy != Strategy::None {
+        use crate::config::Weights;
+        let curve = match cfg.balance.strategy {
+            Strategy::Morton => Curve::Morton,
+            _ => Curve::Hilbert,
+        };
+        let coeffs = match cfg.balance.weights {
+            Weights::Estimator | Weights::Corrected => Some(load_coefficients(cfg)?),
+            _ => None,
+        };
+        pipe.balancer = Some(crate::balance::dynamic::Balancer::new(
+            cfg.balance.weights,
+            curve,
+            cfg.processes.count,
+            coeffs,
+            sim.blocks.len(),
+        ));
+    }
     pipe.first_touch(&sim);
     if opts.trace.is_some() {
         pipe.enable_trace();
@@ -565,9 +590,9 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         imbalance_median: median(&imbalance),
         imbalance,
         modeled_seconds: pipe.intervals.iter().map(|i| i.modeled_seconds).sum(),
-        balance_seconds: 0.0,
+        balance_seconds: pipe.balancer.as_ref().map_or(0.0, |b| b.seconds),
         edge_cut_mean: edge_cut_mean(&sim.domain, owners, procs),
-        migrated_blocks: 0,
+        migrated_blocks: pipe.balancer.as_ref().map_or(0, |b| b.migrated),
         blocks_per_process: (0..procs as u32)
             .map(|p| owners.iter().filter(|&&o| o == p).count())
             .collect(),

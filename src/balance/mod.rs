@@ -2,6 +2,7 @@
 //! diffusive and METIS strategies and dynamic rebalancing on top).
 
 pub mod curves;
+pub mod dynamic;
 pub mod split;
 
 use curves::{curve_order, Curve};

@@ -1,0 +1,100 @@
+//! The balancing step (section 4): at the end of every `balance.interval` steps, weigh every block
+//! (`balance.weights`), order the blocks along the strategy's curve, split greedily and hand the new
+//! owners to the pipeline, which moves the blocks whose owner changed. The numerics never see an owner,
+//! so the result stays bitwise identical whatever the weights and moves.
+
+use super::curves::Curve;
+use crate::config::Weights;
+use crate::estimator::{Coefficients, Corrector};
+use crate::sim::Simulation;
+use blockflow_kernels::Real;
+
+/// State of the dynamic balancing of one run.
+pub struct Balancer {
+    /// What a block weighs.
+    pub weights: Weights,
+    /// Curve of the assignment.
+    pub curve: Curve,
+    /// Virtual processes.
+    pub processes: usize,
+    /// Estimator coefficients (for `estimator` and `corrected`).
+    pub coefficients: Option<Coefficients>,
+    /// Predictor–corrector state (for `corrected`).
+    pub corrector: Corrector,
+    /// Prediction of eq. (15) summed over the current interval's steps, per block.
+    predicted: Vec<f64>,
+    /// Blocks moved so far.
+    pub migrated: u64,
+    /// Seconds spent balancing.
+    pub seconds: f64,
+    /// Balancing steps taken.
+    pub steps: u64,
+}
+
+impl Balancer {
+    /// A balancer for `blocks` blocks.
+    pub fn new(
+        weights: Weights,
+        curve: Curve,
+        processes: usize,
+        coefficients: Option<Coefficients>,
+        blocks: usize,
+    ) -> Self {
+        Balancer {
+            weights,
+            curve,
+            processes,
+            coefficients,
+            corrector: Corrector::new(blocks),
+            predicted: vec![0.0; blocks],
+            migrated: 0,
+            seconds: 0.0,
+            steps: 0,
+        }
+    }
+
+    fn estimate<T: Real>(&self, sim: &Simulation<T>) -> Vec<f64> {
+        let c = self.coefficients.as_ref().expect("estimator weights have coefficients");
+        (0..sim.blocks.len())
+            .map(|b| c.total(&crate::calibrate::quantities(sim, b)))
+            .collect()
+    }
+
+    /// Bookkeeping after a graph run of `k` steps: the corrector's prediction for the interval.
+    pub fn after_run<T: Real>(&mut self, sim: &Simulation<T>, k: usize) {
+        if self.weights == Weights::Corrected {
+            let e = self.estimate(sim);
+            for (p, x) in self.predicted.iter_mut().zip(e) {
+                *p += k as f64 * x;
+            }
+        }
+    }
+
+    /// Block weights for the next distribution, from the interval's measured per-block load.
+    pub fn block_weights<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<f64> {
+        match self.weights {
+            Weights::Cells => {
+                let dry = sim.fluid_cells() == 0;
+                sim.blocks
+                    .iter()
+                    .map(|b| if dry { b.layout.interior_cells() } else { b.current_fluid_cells() } as f64)
+                    .collect()
+            }
+            Weights::Estimator => self.estimate(sim),
+            Weights::Measured => crate::estimator::measured(block_load),
+            Weights::Corrected => {
+                self.corrector.update(&self.predicted, block_load);
+                self.predicted.iter_mut().for_each(|p| *p = 0.0);
+                let e = self.estimate(sim);
+                self.corrector.weights(&e)
+            }
+        }
+    }
+
+    /// The balancing step: weights, curve order, greedy split; returns the new owner of every block.
+    pub fn rebalance<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<u32> {
+        self.steps += 1;
+        let w = self.block_weights(sim, block_load);
+        super::assign(sim.domain.blocks, &w, self.processes, self.curve)
+    }
+}
