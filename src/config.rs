@@ -378,6 +378,22 @@ pub struct BalanceConfig {
     /// `weights = "estimator"`.
     #[serde(default = "d_coefficients")]
     pub coefficients: String,
+    /// How the curve order is cut into processes: `"greedy"` (the paper's prefix split; default) or
+    /// `"optimal"` (the contiguous split minimising the heaviest process, by bisection on the bottleneck).
+    #[serde(default)]
+    pub split: SplitKind,
+}
+
+/// `balance.split`.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum SplitKind {
+    /// For each process in turn, take blocks while that brings it closer to remaining weight / remaining
+    /// processes.
+    #[default]
+    Greedy,
+    /// The contiguous split of the same order with the lightest heaviest part.
+    Optimal,
 }
 
 /// `balance.weights`: what a block weighs.
@@ -411,6 +427,7 @@ impl Default for BalanceConfig {
             interval: d_interval(),
             weights: Weights::Cells,
             coefficients: d_coefficients(),
+            split: SplitKind::Greedy,
         }
     }
 }

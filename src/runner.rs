@@ -322,7 +322,13 @@ pub fn assignment_weighted<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result
         Strategy::Morton => Curve::Morton,
     };
     let weights = block_weights(cfg, sim)?;
-    Ok(balance::assign(sim.domain.blocks, &weights, cfg.processes.count, curve))
+    Ok(balance::assign_with(
+        sim.domain.blocks,
+        &weights,
+        cfg.processes.count,
+        curve,
+        cfg.balance.split,
+    ))
 }
 
 /// Owner process of every block: curve order (`balance.strategy`; `none` is the static Hilbert split),
@@ -422,13 +428,15 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
             Weights::Estimator | Weights::Corrected => Some(load_coefficients(cfg)?),
             _ => None,
         };
-        pipe.balancer = Some(crate::balance::dynamic::Balancer::new(
+        let mut bal = crate::balance::dynamic::Balancer::new(
             cfg.balance.weights,
             curve,
             cfg.processes.count,
             coeffs,
             sim.blocks.len(),
-        ));
+        );
+        bal.split = cfg.balance.split;
+        pipe.balancer = Some(bal);
     }
     pipe.first_touch(&sim);
     if opts.trace.is_some() {

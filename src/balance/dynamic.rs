@@ -29,6 +29,8 @@ pub struct Balancer {
     pub seconds: f64,
     /// Balancing steps taken.
     pub steps: u64,
+    /// How the curve order is cut.
+    pub split: crate::config::SplitKind,
 }
 
 impl Balancer {
@@ -50,6 +52,7 @@ impl Balancer {
             migrated: 0,
             seconds: 0.0,
             steps: 0,
+            split: crate::config::SplitKind::Greedy,
         }
     }
 
@@ -95,6 +98,6 @@ impl Balancer {
     pub fn rebalance<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<u32> {
         self.steps += 1;
         let w = self.block_weights(sim, block_load);
-        super::assign(sim.domain.blocks, &w, self.processes, self.curve)
+        super::assign_with(sim.domain.blocks, &w, self.processes, self.curve, self.split)
     }
 }
