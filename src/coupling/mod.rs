@@ -89,6 +89,8 @@ pub struct ParticleCells {
     owner_spare: Vec<u64>,
     /// Scratch: cells next to a particle cell.
     mark: Vec<bool>,
+    /// Whether any cell of `owner` is covered.
+    owned: bool,
     /// Runs of interior cells that are fluid now (static fluid and not covered by a body).
     pub segments: Vec<Segment>,
     /// Interior fluid cells now.
@@ -170,6 +172,20 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
     let [fx, fy, fz] = l.full();
     // Cells of the block with its ghost layer (element indices run below the field's stride).
     let n = l.sxy * fz;
+    if bodies.is_empty() && !pc.owned && pc.owner.len() == n {
+        // No body near before or now: the static cells are the state; nothing to rebuild or reconstruct.
+        if pc.segments.len() != b.segments.len() || pc.fluid_cells != b.fluid_cells {
+            pc.segments = b.segments.clone();
+        }
+        pc.fluid_cells = b.fluid_cells;
+        pc.near_boundary_cells = b.near_boundary_cells;
+        pc.near_particle_cells = 0;
+        pc.links.clear();
+        pc.turned.clear();
+        pc.covered.clear();
+        pc.bodies.clear();
+        return;
+    }
     let mut old = std::mem::take(&mut pc.owner);
     let mut fresh = std::mem::take(&mut pc.owner_spare);
     fresh.clear();
@@ -299,6 +315,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
         }
     }
     pc.mark = mark;
+    pc.owned = any;
     let slot = |id: u64| bodies.binary_search_by_key(&id, |m| m.id).ok();
     let cells_f = [cells[0] as f64, cells[1] as f64, cells[2] as f64];
     let mut last_cell = usize::MAX;
