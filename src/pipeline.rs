@@ -105,6 +105,10 @@ pub struct IntervalStats {
     pub imbalance: f64,
     /// Bytes packed into cross-process messages.
     pub message_bytes: u64,
+    /// Edge cut eq. (17) per process of the assignment used during the interval.
+    pub edge_cut_mean: f64,
+    /// Blocks moved by the balancing step at the end of the interval.
+    pub migrated_blocks: u64,
 }
 
 /// Totals over a run.
@@ -318,12 +322,19 @@ impl<T: Real> Pipeline<T> {
             left -= k as u64;
             if sim.step.is_multiple_of(self.interval) {
                 self.close_interval(sim.step);
+                let cut = crate::balance::edge_cut_mean(&sim.domain, &self.owners, self.exec.processes());
+                if let Some(iv) = self.intervals.last_mut() {
+                    iv.edge_cut_mean = cut;
+                }
                 if let Some(mut bal) = self.balancer.take() {
                     let t0 = Instant::now();
                     let load = self.intervals.last().map(|i| i.block_load.clone()).unwrap_or_default();
                     let owners = bal.rebalance(sim, &load);
                     let moved = self.set_owners(sim, owners);
                     bal.migrated += moved as u64;
+                    if let Some(iv) = self.intervals.last_mut() {
+                        iv.migrated_blocks = moved as u64;
+                    }
                     bal.seconds += t0.elapsed().as_secs_f64();
                     self.balancer = Some(bal);
                 }

@@ -348,28 +348,7 @@ pub fn assignment<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Vec<u32> {
     balance::assign(sim.domain.blocks, &weights, cfg.processes.count, curve)
 }
 
-/// Edge cut eq. (17) of an assignment: for every pair of neighbouring blocks on different processes,
-/// face b², edge b, corner 1 (shared face area and edge length for non-cubic blocks), each pair once;
-/// returned per process (the mean the paper reports).
-pub fn edge_cut_mean(d: &crate::domain::DomainSpec, owners: &[u32], processes: usize) -> f64 {
-    let s = d.block_size;
-    let mut cut = 0.0;
-    for id in 0..d.num_blocks() {
-        for off in crate::domain::NEIGHBOURS {
-            if let Some(n) = d.neighbour(id, off) {
-                if n > id && owners[n] != owners[id] {
-                    let zeros: Vec<usize> = (0..3).filter(|&a| off[a] == 0).collect();
-                    cut += match zeros.len() {
-                        2 => (s[zeros[0]] * s[zeros[1]]) as f64,
-                        1 => s[zeros[0]] as f64,
-                        _ => 1.0,
-                    };
-                }
-            }
-        }
-    }
-    cut / processes as f64
-}
+pub use crate::balance::edge_cut_mean;
 
 fn median(v: &[f64]) -> f64 {
     if v.is_empty() {
@@ -387,15 +366,24 @@ fn median(v: &[f64]) -> f64 {
 
 fn write_intervals(path: &Path, intervals: &[crate::pipeline::IntervalStats]) -> Result<()> {
     let procs = intervals.first().map_or(0, |i| i.process_load.len());
-    let mut text = String::from("interval,start,end,wall_seconds,modeled_seconds,imbalance,message_bytes");
+    let mut text = String::from(
+        "interval,start,end,wall_seconds,modeled_seconds,imbalance,message_bytes,edge_cut_mean,migrated_blocks",
+    );
     for p in 0..procs {
         text += &format!(",load_p{p}");
     }
     text.push('\n');
     for (i, iv) in intervals.iter().enumerate() {
         text += &format!(
-            "{i},{},{},{:.6e},{:.6e},{:.6e},{}",
-            iv.start, iv.end, iv.wall_seconds, iv.modeled_seconds, iv.imbalance, iv.message_bytes
+            "{i},{},{},{:.6e},{:.6e},{:.6e},{},{:.6e},{}",
+            iv.start,
+            iv.end,
+            iv.wall_seconds,
+            iv.modeled_seconds,
+            iv.imbalance,
+            iv.message_bytes,
+            iv.edge_cut_mean,
+            iv.migrated_blocks
         );
         for l in &iv.process_load {
             text += &format!(",{l:.6e}");
@@ -552,6 +540,14 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     }
     bar.finish_and_clear();
     pipe.close_interval(sim.step);
+    let cut = edge_cut_mean(&sim.domain, pipe.owners(), cfg.processes.count);
+    if let Some(iv) = pipe
+        .intervals
+        .last_mut()
+        .filter(|iv| iv.end == sim.step && iv.edge_cut_mean == 0.0)
+    {
+        iv.edge_cut_mean = cut;
+    }
     series.finish()?;
     if let Some(ps) = pseries {
         ps.finish()?;

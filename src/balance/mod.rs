@@ -33,3 +33,26 @@ pub fn assign_with(
     }
     owner
 }
+
+/// Edge cut eq. (17) of an assignment: for every pair of neighbouring blocks on different processes,
+/// face b², edge b, corner 1 (shared face area and edge length for non-cubic blocks), each pair once;
+/// returned per process (the mean the paper reports).
+pub fn edge_cut_mean(d: &crate::domain::DomainSpec, owners: &[u32], processes: usize) -> f64 {
+    let s = d.block_size;
+    let mut cut = 0.0;
+    for id in 0..d.num_blocks() {
+        for off in crate::domain::NEIGHBOURS {
+            if let Some(n) = d.neighbour(id, off) {
+                if n > id && owners[n] != owners[id] {
+                    let zeros: Vec<usize> = (0..3).filter(|&a| off[a] == 0).collect();
+                    cut += match zeros.len() {
+                        2 => (s[zeros[0]] * s[zeros[1]]) as f64,
+                        1 => s[zeros[0]] as f64,
+                        _ => 1.0,
+                    };
+                }
+            }
+        }
+    }
+    cut / processes as f64
+}
