@@ -20,7 +20,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Options of `blockflow calibrate`.
@@ -415,9 +415,4 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         r.seconds
     );
     s
-}
-
-/// Loads the coefficients a calibration wrote (used by `balance.weights = "estimator"`).
-pub fn load_coefficients(path: &Path) -> Result<Coefficients> {
-    Coefficients::load(path)
 }

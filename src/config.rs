@@ -441,17 +441,7 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<Config> {
 
 /// Parses scene text (named `origin` in messages), applies overrides and validates.
 pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
-    let mut table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-        let pos = e
-            .span()
-            .map(|s| {
-                let line = text[..s.start].matches('\n').count() + 1;
-                let col = s.start - text[..s.start].rfind('\n').map_or(0, |p| p + 1) + 1;
-                format!(" at line {line}, column {col}")
-            })
-            .unwrap_or_default();
-        Error::Config(format!("{origin}: TOML syntax error{pos}: {}", one_line(e.message())))
-    })?;
+    let mut table = parse_table(text, origin)?;
     for o in overrides {
         apply_override(&mut table, o)?;
     }
@@ -475,6 +465,21 @@ pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
     })?;
     cfg.validate().map_err(|e| Error::Config(format!("{origin}: {e}")))?;
     Ok(cfg)
+}
+
+/// Parses TOML text into a table; a syntax error is one line naming `origin`, line and column.
+pub fn parse_table(text: &str, origin: &str) -> Result<toml::Table> {
+    text.parse().map_err(|e: toml::de::Error| {
+        let pos = e
+            .span()
+            .map(|s| {
+                let line = text[..s.start].matches('\n').count() + 1;
+                let col = s.start - text[..s.start].rfind('\n').map_or(0, |p| p + 1) + 1;
+                format!(" at line {line}, column {col}")
+            })
+            .unwrap_or_default();
+        Error::Config(format!("{origin}: TOML syntax error{pos}: {}", one_line(e.message())))
+    })
 }
 
 fn one_line(s: &str) -> String {

@@ -57,15 +57,21 @@ pub fn link_delta(x_fluid: DVec3, q: usize, centre: DVec3, radius: f64) -> Optio
     {
         return None;
     }
+    Some(crossing_fraction(x_fluid - centre, q, radius))
+}
+
+/// δ_q of a link already known to cross the surface (x_f outside, x_f + c_q inside), from the offset
+/// `rel` = x_f − X: the entering root δ = k / (−b + √(b² − a k)) of |rel + δ c_q|² = R², written without
+/// cancellation and clamped to (0, 1]. f(0) = k > 0 ≥ f(1) = a + 2b + k forces b < −a/2 < 0, so the
+/// denominator is positive.
+#[inline]
+pub fn crossing_fraction(rel: DVec3, q: usize, radius: f64) -> f64 {
     let c = lattice_velocity(q);
-    let d = x_fluid - centre;
     let a = c.length_squared();
-    let b = c.dot(d);
-    let k = d.length_squared() - radius * radius; // > 0: x_f is outside
-                                                  // f(0) = k > 0 >= f(1) = a + 2b + k forces b < -a/2 < 0, so -b + sqrt(...) > 0.
+    let b = c.dot(rel);
+    let k = rel.length_squared() - radius * radius;
     let disc = (b * b - a * k).max(0.0);
-    let delta = k / (-b + disc.sqrt());
-    Some(delta.clamp(f64::MIN_POSITIVE, 1.0))
+    (k / (-b + disc.sqrt())).clamp(f64::MIN_POSITIVE, 1.0)
 }
 
 /// Boundary point x_b = x_f + δ_q c_q of eq. (6).

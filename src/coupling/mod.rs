@@ -18,7 +18,9 @@ pub mod tasks;
 use crate::block::Block;
 use crate::domain::DomainSpec;
 use crate::geometry::flags;
-use blockflow_kernels::coupling::{cli_link, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0};
+use blockflow_kernels::coupling::{
+    cli_link, crossing_fraction, link_torque, momentum_exchange, sbb_link, surface_velocity, RHO0,
+};
 use blockflow_kernels::d3q19::{C, OPP, Q};
 use blockflow_kernels::sweep::Segment;
 use blockflow_kernels::trt::{moments, post_collision_equilibrium};
@@ -150,18 +152,6 @@ pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: 
         out[a] = min_image(gw as f64 + 0.5 - centre[a], n[a] as f64, d.periodic[a]);
     }
     out
-}
-
-/// δ_q of a link known to cross the surface (x_f outside, x_f + c_q inside): the same root as
-/// [`link_delta`], without re-testing the end points.
-#[inline]
-fn enter_fraction(rel: DVec3, q: usize, radius: f64) -> f64 {
-    let c = DVec3::new(C[q][0] as f64, C[q][1] as f64, C[q][2] as f64);
-    let a = c.length_squared();
-    let b = c.dot(rel);
-    let k = rel.length_squared() - radius * radius;
-    let disc = (b * b - a * k).max(0.0);
-    (k / (-b + disc.sqrt())).clamp(f64::MIN_POSITIVE, 1.0)
 }
 
 /// Maps `bodies` (sorted by id, canonical centres) into block `b`'s overlay (Algorithm 5): owners of
@@ -332,7 +322,7 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
         let second = (i as isize - l.offset(C[q])) as usize;
         let (delta, second) = if mode == SurfaceBoundary::Cli && is_fluid(second) {
             // x_f is outside and x_f + c_q inside the sphere (the mapping says so): the ray enters it.
-            (enter_fraction(rel, q, body.radius), Some(second))
+            (crossing_fraction(rel, q, body.radius), Some(second))
         } else {
             (0.5, None)
         };

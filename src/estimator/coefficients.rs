@@ -119,17 +119,7 @@ impl Coefficients {
     /// Parses coefficients text (named `origin` in messages) and checks it: every coefficient, the floor
     /// and every fit-quality number finite, the floor ≥ 0.
     pub fn parse(text: &str, origin: &str) -> Result<Self> {
-        let table: toml::Table = text.parse().map_err(|e: toml::de::Error| {
-            let pos = e
-                .span()
-                .map(|s| {
-                    let line = text[..s.start].matches('\n').count() + 1;
-                    let col = s.start - text[..s.start].rfind('\n').map_or(0, |p| p + 1) + 1;
-                    format!(" at line {line}, column {col}")
-                })
-                .unwrap_or_default();
-            Error::Config(format!("{origin}: TOML syntax error{pos}: {}", one_line(e.message())))
-        })?;
+        let table = crate::config::parse_table(text, origin)?;
         let file: File = serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
             let path = e.path().to_string();
             let key = if path == "." {

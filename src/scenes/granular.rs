@@ -17,7 +17,6 @@ use super::{check, ParticleScene, Scene};
 use crate::config::Config;
 use crate::error::{config_err, Result};
 use crate::geometry::Geometry;
-use crate::sim::mix;
 use blockflow_kernels::rigid::{detect_grid, Body, Plane};
 use blockflow_kernels::TrtParams;
 use glam::DVec3;
@@ -134,8 +133,7 @@ fn d_col_steps() -> u64 {
 
 /// Deterministic uniform numbers in [-1, 1) from a seed and a counter.
 fn uniform(seed: u64, k: u64) -> f64 {
-    let h = mix(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ k);
-    ((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    super::seeded_unit(seed, k) * 2.0 - 1.0
 }
 
 fn require_dry(cfg: &Config, name: &str) -> Result<()> {

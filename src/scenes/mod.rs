@@ -91,6 +91,13 @@ pub struct ParticleScene {
     pub dt: f64,
 }
 
+/// Deterministic uniform number in [0, 1) from a seed and a counter (initial jitter and random placement
+/// of the particle scenes; the same bits on every machine).
+pub(crate) fn seeded_unit(seed: u64, k: u64) -> f64 {
+    let h = crate::sim::mix(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ k);
+    (h >> 11) as f64 / (1u64 << 53) as f64
+}
+
 /// The rigid planes of the walls on the non-periodic faces of a box of `cells` (walls at 0 and L).
 pub fn wall_planes(cells: [usize; 3], periodic: [bool; 3]) -> Vec<RigidPlane> {
     let mut out = Vec::new();

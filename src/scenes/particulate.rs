@@ -404,10 +404,7 @@ pub(super) fn build_hopper(s: &HopperConfig, cfg: &Config) -> Result<Scene> {
     let bodies: Vec<Body> = (0..s.count)
         .map(|i| {
             let (l, k) = (i / layer, i % layer);
-            let u = |c: u64| {
-                let h = crate::sim::mix(s.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (8 * i as u64 + c));
-                ((h >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
-            };
+            let u = |c: u64| super::seeded_unit(s.seed, 8 * i as u64 + c) * 2.0 - 1.0;
             let jit = 0.04 * d;
             Body::sphere(
                 i as u64,
@@ -565,10 +562,7 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
                 s.solid_fraction
             ));
         }
-        let u = |c: u64| {
-            let h = crate::sim::mix(s.seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (4 * k + c));
-            (h >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let u = |c: u64| super::seeded_unit(s.seed, 4 * k + c);
         let p = DVec3::new(u(0) * lx, u(1) * ly, r + 0.05 + u(2) * (lz - d - 0.1));
         k += 1;
         let clear = bodies.iter().all(|b| {
