@@ -272,6 +272,32 @@ impl<T: Real> Block<T> {
         }
     }
 
+    /// A fresh field at rest for slot `p` (0 or 1), with the slot's page skew. Its pages are mapped lazily:
+    /// the first thread that writes them places them (first touch).
+    pub fn fresh_field(&self, p: usize) -> PdfField<T> {
+        PdfField::new(self.layout, if p == 0 { 0 } else { DST_SKEW_BYTES })
+    }
+
+    /// Replaces field `p` (e.g. by one rebuilt from a serialised block) and returns the old one.
+    ///
+    /// # Safety
+    /// No other reference to field `p` may be alive, and no task may run on this block.
+    pub unsafe fn replace_field(&self, p: usize, f: PdfField<T>) -> PdfField<T> {
+        assert_eq!(f.layout, self.layout, "replacement field of another layout");
+        std::mem::replace(&mut *self.fields[p].get(), f)
+    }
+
+    /// Replaces the particle overlay (`None`: no particles mapped into this block) and returns the old one.
+    ///
+    /// # Safety
+    /// No other reference to the overlay may be alive, and no task may run on this block.
+    pub unsafe fn replace_particle_cells(
+        &self,
+        pc: Option<crate::coupling::ParticleCells>,
+    ) -> Option<crate::coupling::ParticleCells> {
+        std::mem::replace(&mut *self.particles.get(), pc)
+    }
+
     /// Bytes of PDF storage (both fields).
     pub fn pdf_bytes(&self) -> usize {
         2 * self.layout.len() * std::mem::size_of::<T>()

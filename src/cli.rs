@@ -41,7 +41,7 @@ pub enum Command {
         /// Pinning: compact, scatter, none or a core list such as 0,1 (processes.pin).
         #[arg(long)]
         pin: Option<String>,
-        /// Assignment strategy: none, hilbert, morton (balance.strategy).
+        /// Assignment strategy: none, hilbert, morton, diffusive, metis (balance.strategy).
         #[arg(long)]
         balance: Option<String>,
         /// Steps per balancing / measurement interval (balance.interval).
@@ -86,6 +86,48 @@ pub enum Command {
         #[arg(long, default_value = "out/calibration")]
         out: PathBuf,
     },
+    /// The load-balancing study (paper section 4.3): run SCENE once, replay its measured task times under
+    /// every strategy on P processes of T threads (Table 3, figures 10 and 11 in --out); --live also runs
+    /// every strategy for real and prints modeled against measured.
+    Study {
+        /// Scene file (TOML), e.g. configs/hopper.toml.
+        scene: PathBuf,
+        /// Processes P of the strategies (any number: the run is replayed, not executed, on them).
+        #[arg(long)]
+        processes: usize,
+        /// Threads per process T of the strategies.
+        #[arg(long, default_value_t = 1)]
+        threads_per_process: usize,
+        /// Strategies, comma-separated: none, hilbert, morton, diffusive, metis, steal-global.
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "none,hilbert,morton,diffusive,metis,steal-global"
+        )]
+        strategies: Vec<String>,
+        /// Block weights of the rebalancing strategies: cells, estimator, measured, corrected
+        /// (default: the scene's balance.weights).
+        #[arg(long)]
+        weights: Option<String>,
+        /// Number of time steps (default: run.steps, else the scene's own).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Steps per balancing interval (balance.interval).
+        #[arg(long)]
+        interval: Option<u64>,
+        /// Override a key of the scene file (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Also run every strategy for real on P × T threads: modeled against measured.
+        #[arg(long)]
+        live: bool,
+        /// Threads of the recording run (default: the machine's cores).
+        #[arg(long)]
+        record_threads: Option<usize>,
+        /// Output folder.
+        #[arg(long, default_value = "out/study")]
+        out: PathBuf,
+    },
     /// Benchmarks that print tables.
     Bench {
         /// Which benchmark.
@@ -121,6 +163,9 @@ pub enum BenchKind {
         #[arg(long, value_delimiter = ',', default_value = "1,2")]
         threads: Vec<usize>,
     },
+    /// Cost of the balancing step: curve keys and splits for 100 000 blocks, diffusive and METIS on the
+    /// hopper's 288 blocks for 32 processes.
+    Balance,
 }
 
 /// Executes a parsed command line.
@@ -239,6 +284,62 @@ pub fn execute(cli: Cli) -> Result<()> {
             let coeffs = crate::estimator::Coefficients::load(&out.join("coefficients.toml"))?;
             print_out(&crate::calibrate::to_markdown(&report, &coeffs));
             print_out(&format!("results in {}\n", out.display()));
+            Ok(())
+        }
+        Command::Study {
+            scene,
+            processes,
+            threads_per_process,
+            strategies,
+            weights,
+            steps,
+            interval,
+            mut set,
+            live,
+            record_threads,
+            out,
+        } => {
+            if let Some(i) = interval {
+                set.push(format!("balance.interval={i}"));
+            }
+            let weights = match weights {
+                None => None,
+                Some(w) => Some(
+                    serde_json::from_value::<crate::config::Weights>(serde_json::Value::String(w.clone())).map_err(
+                        |_| {
+                            Error::Config(format!(
+                                "--weights {w}: unknown; use cells, estimator, measured or corrected"
+                            ))
+                        },
+                    )?,
+                ),
+            };
+            let opts = crate::study::run::StudyOptions {
+                scene,
+                sets: set,
+                processes,
+                threads_per_process,
+                strategies,
+                weights,
+                steps,
+                live,
+                out: out.clone(),
+                record_threads,
+            };
+            let r = crate::study::run::study(&opts)?;
+            let mut text = crate::study::report::markdown(&r.strategies);
+            if !r.live.is_empty() {
+                text += "\nLive runs, modeled against measured:\n\n";
+                text += &crate::study::run::live_markdown(&r.live);
+            }
+            text += &format!("results in {}\n", out.display());
+            print_out(&text);
+            Ok(())
+        }
+        Command::Bench {
+            which: BenchKind::Balance,
+        } => {
+            print_out(&crate::balance::strategy::scale_table());
             Ok(())
         }
         Command::Bench {

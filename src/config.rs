@@ -356,6 +356,23 @@ pub enum Strategy {
     Hilbert,
     /// Morton curve order, greedy prefix split.
     Morton,
+    /// Diffusive balancing between neighbouring processes (waLBerla's `DynamicDiffusionBalance`), starting
+    /// from the Hilbert assignment; see `balance::diffusive`.
+    Diffusive,
+    /// METIS k-way graph partitioning of the block graph (eq. 17 edge weights), relabelled to keep blocks
+    /// where they are, starting from the Hilbert assignment; see `balance::graph_partition`.
+    Metis,
+}
+
+/// `balance.diffusive_mode`: who decides which blocks move in the diffusive strategy.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum DiffusiveMode {
+    /// Processes with outflow send blocks to their neighbours (default).
+    #[default]
+    Push,
+    /// Processes with inflow take blocks from their neighbours.
+    Pull,
 }
 
 /// `[balance]`: assignment and balancing.
@@ -370,8 +387,8 @@ pub struct BalanceConfig {
     pub interval: u64,
     /// Block weight: `"cells"` (fluid cells; default), `"estimator"` (eq. 15 with `balance.coefficients`),
     /// `"measured"` (the block's m_tot over the last interval) or `"corrected"` (the estimate times the
-    /// smoothed measured/predicted ratio). With `strategy = "hilbert"` or `"morton"` the blocks are
-    /// redistributed with these weights at the end of every interval; `"none"` never moves a block.
+    /// smoothed measured/predicted ratio). With every strategy but `"none"` (which never moves a
+    /// block) the blocks are redistributed with these weights at the end of every interval.
     #[serde(default)]
     pub weights: Weights,
     /// Coefficients file of the estimator (written by `blockflow calibrate`); used with
@@ -382,6 +399,29 @@ pub struct BalanceConfig {
     /// `"optimal"` (the contiguous split minimising the heaviest process, by bisection on the bottleneck).
     #[serde(default)]
     pub split: SplitKind,
+    /// Diffusive strategy: diffusion iterations over the process graph per main iteration (the flow
+    /// estimate on every process-process edge; at least 1).
+    #[serde(default = "d_flow_iterations")]
+    pub flow_iterations: usize,
+    /// Diffusive strategy: main iterations per balancing step (a block moves at most one process hop per
+    /// main iteration; at least 1).
+    #[serde(default = "d_diffusive_iterations")]
+    pub diffusive_iterations: usize,
+    /// Diffusive strategy: `"push"` (overloaded processes send; default) or `"pull"` (underloaded processes
+    /// take).
+    #[serde(default)]
+    pub diffusive_mode: DiffusiveMode,
+    /// METIS strategy: allowed load imbalance, max part weight / mean part weight (METIS' ufactor is
+    /// `(metis_imbalance - 1) * 1000`; at least 1.0; default 1.05).
+    #[serde(default = "d_metis_imbalance")]
+    pub metis_imbalance: f64,
+    /// Latency α of a message between processes in the modeled times (seconds; default 2e-6, an
+    /// InfiniBand FDR cluster like the paper's SuperMUC).
+    #[serde(default = "d_latency")]
+    pub latency: f64,
+    /// Bandwidth β of a message between processes in the modeled times (bytes per second; default 5e9).
+    #[serde(default = "d_bandwidth")]
+    pub bandwidth: f64,
 }
 
 /// `balance.split`.
@@ -420,6 +460,26 @@ fn d_interval() -> u64 {
     100
 }
 
+fn d_flow_iterations() -> usize {
+    15
+}
+
+fn d_diffusive_iterations() -> usize {
+    20
+}
+
+fn d_metis_imbalance() -> f64 {
+    1.05
+}
+
+fn d_latency() -> f64 {
+    crate::study::model::DEFAULT_LATENCY
+}
+
+fn d_bandwidth() -> f64 {
+    crate::study::model::DEFAULT_BANDWIDTH
+}
+
 impl Default for BalanceConfig {
     fn default() -> Self {
         BalanceConfig {
@@ -428,6 +488,12 @@ impl Default for BalanceConfig {
             weights: Weights::Cells,
             coefficients: d_coefficients(),
             split: SplitKind::Greedy,
+            flow_iterations: d_flow_iterations(),
+            diffusive_iterations: d_diffusive_iterations(),
+            diffusive_mode: DiffusiveMode::Push,
+            metis_imbalance: d_metis_imbalance(),
+            latency: d_latency(),
+            bandwidth: d_bandwidth(),
         }
     }
 }
@@ -561,6 +627,29 @@ impl Config {
         self.particles.validate()?;
         if self.balance.interval == 0 {
             return config_err("balance.interval = 0: must be at least 1 step");
+        }
+        for (name, v) in [
+            ("balance.flow_iterations", self.balance.flow_iterations),
+            ("balance.diffusive_iterations", self.balance.diffusive_iterations),
+        ] {
+            if v == 0 || v > 100_000 {
+                return config_err(format!("{name} = {v}: must be between 1 and 100000"));
+            }
+        }
+        let mi = self.balance.metis_imbalance;
+        if !(mi.is_finite() && (1.0..=3.0).contains(&mi)) {
+            return config_err(format!(
+                "balance.metis_imbalance = {mi}: must be a finite number between 1.0 and 3.0"
+            ));
+        }
+        let (a, b) = (self.balance.latency, self.balance.bandwidth);
+        if !(a.is_finite() && (0.0..=1.0).contains(&a)) {
+            return config_err(format!("balance.latency = {a}: must be between 0 and 1 second"));
+        }
+        if !(b.is_finite() && b >= 1e3) {
+            return config_err(format!(
+                "balance.bandwidth = {b}: must be at least 1e3 bytes per second"
+            ));
         }
         for (name, v) in [
             ("run.series_every", self.run.series_every),

@@ -24,4 +24,6 @@ pub mod particles;
 pub mod pipeline;
 pub mod runner;
 pub mod scenes;
+pub mod serialise;
 pub mod sim;
+pub mod study;

@@ -35,7 +35,7 @@ use crate::sim::Simulation;
 use blockflow_kernels::sweep::SweepStats;
 use blockflow_kernels::Real;
 use blockflow_scheduler::executor::Executor;
-use blockflow_scheduler::replay::{load_imbalance, replay_makespan};
+use blockflow_scheduler::replay::load_imbalance;
 use blockflow_scheduler::trace::TraceWriter;
 use blockflow_scheduler::{GraphBuilder, TaskGraph, TaskId, TaskRecord, TaskSpec};
 use std::collections::HashMap;
@@ -94,9 +94,13 @@ pub struct IntervalStats {
     pub end: u64,
     /// Wall-clock seconds of the graph runs.
     pub wall_seconds: f64,
-    /// Modeled seconds: the recorded graphs replayed with measured CPU durations on P×T dedicated cores.
+    /// Modeled seconds (`graph` model of [`crate::study::model`]): the recorded graphs replayed with
+    /// measured CPU durations on P×T dedicated cores, messages between processes priced at α + bytes/β.
     pub modeled_seconds: f64,
-    /// Workload (CPU seconds of every task but communication, eq. 16) per owner process.
+    /// Modeled seconds of the `bsp` model (sum over steps of the slowest process, messages included).
+    pub bsp_seconds: f64,
+    /// Workload (CPU seconds of every task but communication, eq. 16) per owner process, summed from
+    /// `block_load` in block-id order.
     pub process_load: Vec<f64>,
     /// The same per block (m_tot of each block summed over the interval, in block-id order): the
     /// `measured` block weight and the corrector's measurement.
@@ -109,6 +113,13 @@ pub struct IntervalStats {
     pub edge_cut_mean: f64,
     /// Blocks moved by the balancing step at the end of the interval.
     pub migrated_blocks: u64,
+    /// Bytes of the serialised blocks moved at the end of the interval.
+    pub migrated_bytes: u64,
+    /// The load imbalance eq. (18) the block weights predicted for this interval's assignment (NaN
+    /// when the assignment was not made from weights).
+    pub predicted_imbalance: f64,
+    /// Seconds of the balancing step at the end of the interval (weights, partition, migration, re-arm).
+    pub balance_seconds: f64,
 }
 
 /// Totals over a run.
@@ -154,6 +165,11 @@ pub struct Pipeline<T: Real> {
     pub force_averaging: bool,
     /// Dynamic load balancing at the end of every interval (absent: the assignment never changes).
     pub balancer: Option<crate::balance::dynamic::Balancer>,
+    /// Price of a message between processes in the modeled times.
+    pub comm: crate::study::model::CommModel,
+    kinds: crate::study::model::TaskKinds,
+    /// Counterfactual assignments replayed alongside the run (`blockflow study`).
+    pub study: Option<crate::study::Counterfactual>,
     /// When set, the thread CPU nanoseconds of the last graph run per (step in the run, block) and part
     /// (index as [`PARTS`]): the per-block part timings m_X of section 3 (set it to `Some(Vec::new())`).
     pub block_times: Option<Vec<[u64; 6]>>,
@@ -188,26 +204,56 @@ impl<T: Real> Pipeline<T> {
             force_averaging: true,
             block_times: None,
             balancer: None,
+            comm: Default::default(),
+            kinds: task_kinds(sim),
+            study: None,
             _marker: std::marker::PhantomData,
         }
     }
 
-    /// Moves blocks to new owners: recomputes which ghost regions travel as messages and drops the
-    /// compiled graphs (the next run compiles for the new owners). Block data stays where it is: on one
-    /// node the move is a change of owner; the numerics never see it. Returns how many blocks moved.
-    pub fn set_owners(&mut self, sim: &Simulation<T>, owners: Vec<u32>) -> usize {
+    /// Moves blocks to new owners: every block whose owner changes is serialised ([`crate::serialise`])
+    /// by a thread of its old owner and rebuilt from the bytes by a thread of its new owner, which
+    /// first-touches its new fields; then the ghost-region message plan is recomputed and the compiled
+    /// graphs are dropped (the next run compiles for the new owners). Ghost layers are refilled by the
+    /// next step's exchange. The numerics never see an owner. Returns the blocks moved and their bytes.
+    pub fn set_owners(&mut self, sim: &Simulation<T>, owners: Vec<u32>) -> (usize, u64) {
         assert_eq!(owners.len(), sim.blocks.len());
-        let moved = owners.iter().zip(&self.owners).filter(|(a, b)| a != b).count();
-        if moved == 0 {
-            return 0;
+        let moved: Vec<usize> = (0..owners.len()).filter(|&b| owners[b] != self.owners[b]).collect();
+        if moved.is_empty() {
+            return (0, 0);
         }
+        let bufs: Vec<Mutex<Vec<u8>>> = moved.iter().map(|_| Mutex::new(Vec::new())).collect();
+        let old = &self.owners;
+        self.exec.on_each_process(|p| {
+            for (i, &b) in moved.iter().enumerate() {
+                if old[b] == p {
+                    crate::serialise::encode_block(sim, b, &mut bufs[i].lock().expect("migration buffer"));
+                }
+            }
+        });
+        let new = &owners;
+        self.exec.on_each_process(|p| {
+            for (i, &b) in moved.iter().enumerate() {
+                if new[b] == p {
+                    let bytes = bufs[i].lock().expect("migration buffer");
+                    // SAFETY: no task runs; each moved block is rebuilt by exactly one thread.
+                    if let Err(e) = unsafe { crate::serialise::decode_block(sim, b, &bytes) } {
+                        panic!("block {b} does not rebuild from its own bytes: {e}");
+                    }
+                }
+            }
+        });
+        let bytes: u64 = bufs
+            .iter()
+            .map(|b| b.lock().expect("migration buffer").len() as u64)
+            .sum();
         let (outgoing, slot_of, nslots) = message_plan(sim, &owners);
         self.outgoing = outgoing;
         self.slot_of = slot_of;
         self.slots = (0..nslots).map(|_| Mutex::new(Vec::new())).collect();
         self.owners = owners;
         self.graphs.clear();
-        moved
+        (moved.len(), bytes)
     }
 
     /// Records a Chrome trace of every run from now on; events carry the absolute step of their task.
@@ -313,6 +359,9 @@ impl<T: Real> Pipeline<T> {
             if let Some(bal) = self.balancer.as_mut() {
                 bal.after_run(sim, k);
             }
+            if let Some(cf) = self.study.as_mut() {
+                cf.after_steps(sim, k);
+            }
             if let Some(parts) = sim.particles.as_mut() {
                 parts.collect_stats((k * parts.subcycles) as u64);
                 if let Some(e) = parts.take_error() {
@@ -321,38 +370,65 @@ impl<T: Real> Pipeline<T> {
             }
             left -= k as u64;
             if sim.step.is_multiple_of(self.interval) {
-                self.close_interval(sim.step);
-                let cut = crate::balance::edge_cut_mean(&sim.domain, &self.owners, self.exec.processes());
-                if let Some(iv) = self.intervals.last_mut() {
-                    iv.edge_cut_mean = cut;
-                }
-                if let Some(mut bal) = self.balancer.take() {
-                    let t0 = Instant::now();
-                    let load = self.intervals.last().map(|i| i.block_load.clone()).unwrap_or_default();
-                    let owners = bal.rebalance(sim, &load);
-                    let moved = self.set_owners(sim, owners);
-                    bal.migrated += moved as u64;
-                    if let Some(iv) = self.intervals.last_mut() {
-                        iv.migrated_blocks = moved as u64;
-                    }
-                    bal.seconds += t0.elapsed().as_secs_f64();
-                    self.balancer = Some(bal);
-                }
+                self.close_interval(sim);
+                self.balance(sim);
             }
         }
         Ok(())
     }
 
-    /// Closes the current measurement interval (also called at the end of a run for a partial interval).
-    pub fn close_interval(&mut self, step: u64) {
+    /// The balancing step at the end of an interval: weights, a new assignment, migration, re-arm (the
+    /// graphs are recompiled at the next run); then the counterfactual assignments take theirs.
+    fn balance(&mut self, sim: &Simulation<T>) {
+        let load = self.intervals.last().map(|i| i.block_load.clone()).unwrap_or_default();
+        if let Some(mut bal) = self.balancer.take() {
+            let t0 = Instant::now();
+            let dist = bal.rebalance(sim, &load, &self.owners);
+            let predicted = crate::study::predicted_imbalance(bal.last_weights(), &dist.owners, self.exec.processes());
+            let (moved, bytes) = self.set_owners(sim, dist.owners);
+            let secs = t0.elapsed().as_secs_f64();
+            bal.migrated += moved as u64;
+            bal.seconds += secs;
+            if let Some(iv) = self.intervals.last_mut() {
+                iv.migrated_blocks = moved as u64;
+                iv.migrated_bytes = bytes;
+                iv.balance_seconds = secs;
+            }
+            self.current.predicted_imbalance = predicted;
+            self.balancer = Some(bal);
+        }
+        if let Some(cf) = self.study.as_mut() {
+            cf.balance(sim, &load);
+        }
+    }
+
+    /// Closes the current measurement interval at `sim.step` (also called at the end of a run for a
+    /// partial interval): per-process loads from the per-block loads in block-id order, the imbalance
+    /// and the edge cut of the interval's assignment; the counterfactual assignments close theirs.
+    pub fn close_interval(&mut self, sim: &Simulation<T>) {
+        let step = sim.step;
         if step <= self.current.start {
             return;
         }
+        let procs = self.exec.processes();
         let mut c = std::mem::take(&mut self.current);
         c.end = step;
+        c.block_load.resize(sim.blocks.len(), 0.0);
+        c.process_load = crate::study::process_loads(&c.block_load, &self.owners, procs);
         c.imbalance = load_imbalance(&c.process_load);
+        c.edge_cut_mean = crate::balance::edge_cut_mean(&sim.domain, &self.owners, procs);
+        if let Some(cf) = self.study.as_mut() {
+            cf.close_interval(sim, &c.block_load);
+        }
         self.intervals.push(c);
         self.current.start = step;
+        self.current.predicted_imbalance = f64::NAN;
+    }
+
+    /// Sets the load imbalance the initial assignment's weights predict for the first interval.
+    pub fn set_predicted_imbalance(&mut self, weights: &[f64]) {
+        self.current.predicted_imbalance =
+            crate::study::predicted_imbalance(weights, &self.owners, self.exec.processes());
     }
 
     fn run_graph(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Instability> {
@@ -474,9 +550,6 @@ impl<T: Real> Pipeline<T> {
 
     fn account(&mut self, graph: &TaskGraph, records: &[TaskRecord], wall: f64, sim: &Simulation<T>, k: usize) {
         let procs = self.exec.processes();
-        if self.current.process_load.len() != procs {
-            self.current.process_load = vec![0.0; procs];
-        }
         if self.current.block_load.len() != sim.blocks.len() {
             self.current.block_load = vec![0.0; sim.blocks.len()];
         }
@@ -494,21 +567,29 @@ impl<T: Real> Pipeline<T> {
                 bt[step_of(spec.payload) * nb + spec.block as usize][spec.part as usize] += r.cpu_ns;
             }
             if spec.part != PART_EXCHANGE {
-                self.current.process_load[spec.owner as usize] += cpu;
                 self.current.block_load[spec.block as usize] += cpu;
             }
             durations.push(r.cpu_ns);
         }
         self.totals.tasks += records.len() as u64;
-        let makespan = replay_makespan(
+        let times = crate::study::model::model_run(
             graph,
             &durations,
+            &self.owners,
             procs,
             self.exec.threads_per_process(),
             self.steal_global,
+            &self.comm,
+            &self.kinds,
+            k,
+            step_of,
         );
-        self.current.modeled_seconds += makespan as f64 * 1e-9;
+        self.current.modeled_seconds += times.graph_ns as f64 * 1e-9;
+        self.current.bsp_seconds += times.bsp_ns as f64 * 1e-9;
         self.current.wall_seconds += wall;
+        if let Some(cf) = self.study.as_mut() {
+            cf.after_run(graph, &durations, k, &self.kinds, step_of);
+        }
         let mut bytes = 0u64;
         let mut remote = 0u64;
         for o in self.outgoing.iter().flatten() {
@@ -521,6 +602,24 @@ impl<T: Real> Pipeline<T> {
         self.totals.remote_messages += remote * k as u64;
         self.totals.local_copies += local * k as u64;
         self.current.message_bytes += bytes * k as u64;
+    }
+}
+
+/// The task kinds the modeled times need: which tasks receive ghost regions and the bytes of every
+/// (sender block, receiver block) region (summed over the regions a pair shares across periodic wraps).
+pub fn task_kinds<T: Real>(sim: &Simulation<T>) -> crate::study::model::TaskKinds {
+    let mut region_bytes = HashMap::new();
+    for b in &sim.blocks {
+        for g in &b.recv {
+            let bytes = (region_cells(b, g.offset) * g.directions.len() * T::BYTES) as u64;
+            *region_bytes.entry((g.from as u32, b.id as u32)).or_insert(0) += bytes;
+        }
+    }
+    crate::study::model::TaskKinds {
+        exchange_part: PART_EXCHANGE,
+        kind_mask: 15,
+        comm_kind: KIND_COMM,
+        region_bytes,
     }
 }
 

@@ -318,7 +318,7 @@ pub fn load_coefficients(cfg: &Config) -> Result<crate::estimator::Coefficients>
 /// (`balance.strategy`; `none` is the static Hilbert split), greedy prefix split.
 pub fn assignment_weighted<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<u32>> {
     let curve = match cfg.balance.strategy {
-        Strategy::None | Strategy::Hilbert => Curve::Hilbert,
+        Strategy::None | Strategy::Hilbert | Strategy::Diffusive | Strategy::Metis => Curve::Hilbert,
         Strategy::Morton => Curve::Morton,
     };
     let weights = block_weights(cfg, sim)?;
@@ -335,7 +335,7 @@ pub fn assignment_weighted<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result
 /// greedy prefix split by fluid-cell count (cell count in scenes without fluid).
 pub fn assignment<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Vec<u32> {
     let curve = match cfg.balance.strategy {
-        Strategy::None | Strategy::Hilbert => Curve::Hilbert,
+        Strategy::None | Strategy::Hilbert | Strategy::Diffusive | Strategy::Metis => Curve::Hilbert,
         Strategy::Morton => Curve::Morton,
     };
     // Without fluid (dry rigid-body scenes) every block weighs its cell count.
@@ -346,6 +346,46 @@ pub fn assignment<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Vec<u32> {
         .map(|b| if dry { b.layout.interior_cells() } else { b.fluid_cells } as f64)
         .collect();
     balance::assign(sim.domain.blocks, &weights, cfg.processes.count, curve)
+}
+
+/// The balancer of `balance.strategy` on `processes.count` processes (none for `"none"`: the
+/// assignment never changes).
+pub fn make_balancer<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Option<crate::balance::dynamic::Balancer>> {
+    use crate::config::Weights;
+    if cfg.balance.strategy == Strategy::None {
+        return Ok(None);
+    }
+    let coeffs = match cfg.balance.weights {
+        Weights::Estimator | Weights::Corrected => Some(load_coefficients(cfg)?),
+        _ => None,
+    };
+    Ok(Some(crate::balance::dynamic::Balancer::new(
+        cfg.balance.weights,
+        crate::balance::strategy::strategy(&cfg.balance),
+        cfg.processes.count,
+        coeffs,
+        &sim.domain,
+    )))
+}
+
+/// The pipeline of a run: the executor of `[processes]`, the initial assignment by `balance.weights`
+/// (with the load imbalance those weights predict for the first interval), the balancer, the message
+/// price of the modeled times, and the first touch of every block by its owner.
+pub fn make_pipeline<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Pipeline<T>> {
+    let exec = make_executor(cfg)?;
+    let owners = assignment_weighted(cfg, sim)?;
+    let weights = block_weights(cfg, sim)?;
+    let mut pipe = Pipeline::new(sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
+    pipe.surface = cfg.particles.boundary;
+    pipe.force_averaging = cfg.particles.force_averaging;
+    pipe.comm = crate::study::model::CommModel {
+        latency: cfg.balance.latency,
+        bandwidth: cfg.balance.bandwidth,
+    };
+    pipe.set_predicted_imbalance(&weights);
+    pipe.balancer = make_balancer(cfg, sim)?;
+    pipe.first_touch(sim);
+    Ok(pipe)
 }
 
 pub use crate::balance::edge_cut_mean;
@@ -367,7 +407,8 @@ fn median(v: &[f64]) -> f64 {
 fn write_intervals(path: &Path, intervals: &[crate::pipeline::IntervalStats]) -> Result<()> {
     let procs = intervals.first().map_or(0, |i| i.process_load.len());
     let mut text = String::from(
-        "interval,start,end,wall_seconds,modeled_seconds,imbalance,message_bytes,edge_cut_mean,migrated_blocks",
+        "interval,start,end,wall_seconds,modeled_seconds,bsp_seconds,imbalance,predicted_imbalance,message_bytes,\
+         edge_cut_mean,migrated_blocks,migrated_bytes,balance_seconds",
     );
     for p in 0..procs {
         text += &format!(",load_p{p}");
@@ -375,15 +416,19 @@ fn write_intervals(path: &Path, intervals: &[crate::pipeline::IntervalStats]) ->
     text.push('\n');
     for (i, iv) in intervals.iter().enumerate() {
         text += &format!(
-            "{i},{},{},{:.6e},{:.6e},{:.6e},{},{:.6e},{}",
+            "{i},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{:.6e},{},{},{:.6e}",
             iv.start,
             iv.end,
             iv.wall_seconds,
             iv.modeled_seconds,
+            iv.bsp_seconds,
             iv.imbalance,
+            iv.predicted_imbalance,
             iv.message_bytes,
             iv.edge_cut_mean,
-            iv.migrated_blocks
+            iv.migrated_blocks,
+            iv.migrated_bytes,
+            iv.balance_seconds
         );
         for l in &iv.process_load {
             text += &format!(",{l:.6e}");
@@ -401,32 +446,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let eff = dir.join("effective.toml");
     std::fs::write(&eff, cfg.to_toml()).map_err(|e| io_err(&eff, e))?;
     let mut sim = build_sim::<T>(cfg, &scene)?;
-    let exec = make_executor(cfg)?;
-    let owners = assignment_weighted(cfg, &sim)?;
-    let mut pipe = Pipeline::new(&sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
-    pipe.surface = cfg.particles.boundary;
-    pipe.force_averaging = cfg.particles.force_averaging;
-    if cfg.balance.strategy != Strategy::None {
-        use crate::config::Weights;
-        let curve = match cfg.balance.strategy {
-            Strategy::Morton => Curve::Morton,
-            _ => Curve::Hilbert,
-        };
-        let coeffs = match cfg.balance.weights {
-            Weights::Estimator | Weights::Corrected => Some(load_coefficients(cfg)?),
-            _ => None,
-        };
-        let mut bal = crate::balance::dynamic::Balancer::new(
-            cfg.balance.weights,
-            curve,
-            cfg.processes.count,
-            coeffs,
-            sim.blocks.len(),
-        );
-        bal.split = cfg.balance.split;
-        pipe.balancer = Some(bal);
-    }
-    pipe.first_touch(&sim);
+    let mut pipe = make_pipeline(cfg, &sim)?;
     if opts.trace.is_some() {
         pipe.enable_trace();
     }
@@ -539,15 +559,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         bar.set_position(s);
     }
     bar.finish_and_clear();
-    pipe.close_interval(sim.step);
-    let cut = edge_cut_mean(&sim.domain, pipe.owners(), cfg.processes.count);
-    if let Some(iv) = pipe
-        .intervals
-        .last_mut()
-        .filter(|iv| iv.end == sim.step && iv.edge_cut_mean == 0.0)
-    {
-        iv.edge_cut_mean = cut;
-    }
+    pipe.close_interval(&sim);
     series.finish()?;
     if let Some(ps) = pseries {
         ps.finish()?;
@@ -593,8 +605,17 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         interval: cfg.balance.interval,
         imbalance_median: median(&imbalance),
         imbalance,
+        predicted_imbalance: pipe
+            .intervals
+            .iter()
+            .map(|i| i.predicted_imbalance.is_finite().then_some(i.predicted_imbalance))
+            .collect(),
         modeled_seconds: pipe.intervals.iter().map(|i| i.modeled_seconds).sum(),
-        balance_seconds: pipe.balancer.as_ref().map_or(0.0, |b| b.seconds),
+        bsp_seconds: pipe.intervals.iter().map(|i| i.bsp_seconds).sum(),
+        balance_seconds: pipe.intervals.iter().map(|i| i.balance_seconds).sum(),
+        migrated_bytes: pipe.intervals.iter().map(|i| i.migrated_bytes).sum(),
+        latency: cfg.balance.latency,
+        bandwidth: cfg.balance.bandwidth,
         edge_cut_mean: edge_cut_mean(&sim.domain, owners, procs),
         migrated_blocks: pipe.balancer.as_ref().map_or(0, |b| b.migrated),
         blocks_per_process: (0..procs as u32)

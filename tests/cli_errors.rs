@@ -77,7 +77,14 @@ fn bad_values_name_their_key() {
     fails_cleanly(&ch, &["--interval", "0"], &["balance.interval"]);
     fails_cleanly(&ch, &["--pin", "foo"], &["processes.pin", "foo"]);
     fails_cleanly(&ch, &["--pin", "0,1,99999"], &["processes.pin"]);
-    fails_cleanly(&ch, &["--balance", "metis"], &["balance.strategy", "metis"]);
+    fails_cleanly(&ch, &["--balance", "parmetis"], &["balance.strategy", "parmetis"]);
+    fails_cleanly(
+        &ch,
+        &["--set", "balance.metis_imbalance=0.5"],
+        &["balance.metis_imbalance"],
+    );
+    fails_cleanly(&ch, &["--set", "balance.latency=-1"], &["balance.latency"]);
+    fails_cleanly(&ch, &["--set", "balance.bandwidth=0"], &["balance.bandwidth"]);
     fails_cleanly(&ch, &["--set", "processes.steal=\"everywhere\""], &["processes.steal"]);
 }
 

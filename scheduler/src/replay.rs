@@ -54,6 +54,29 @@ pub fn replay_makespan(
     threads_per_process: usize,
     global: bool,
 ) -> u64 {
+    replay_mapped(
+        graph,
+        durations_ns,
+        |t| graph.spec(t).owner,
+        processes,
+        threads_per_process,
+        global,
+        |_, _| 0,
+    )
+}
+
+/// [`replay_makespan`] with the owner of every task given by `owner_of` (a counterfactual assignment of
+/// the same graph) and a delay on every edge: successor `s` of `t` may start no earlier than `t`'s finish
+/// plus `delay(t, s)` ns (a message between processes). Returns the makespan in ns.
+pub fn replay_mapped(
+    graph: &TaskGraph,
+    durations_ns: &[u64],
+    owner_of: impl Fn(TaskId) -> u32,
+    processes: usize,
+    threads_per_process: usize,
+    global: bool,
+    delay: impl Fn(TaskId, TaskId) -> u64,
+) -> u64 {
     let processes = processes.max(1);
     let threads = threads_per_process.max(1);
     let (pools, cores_per_pool) = if global {
@@ -65,15 +88,18 @@ pub fn replay_makespan(
         if global {
             0
         } else {
-            graph.spec(t).owner as usize % processes
+            owner_of(t) as usize % processes
         }
     };
     let duration = |t: TaskId| durations_ns.get(t as usize).copied().unwrap_or(0);
 
     let mut remaining: Vec<u32> = graph.indegrees().to_vec();
+    let mut ready_at: Vec<u64> = vec![0; graph.len()];
     let mut free: Vec<usize> = vec![cores_per_pool; pools];
     // Ready tasks per pool, smallest (ready time, id) first.
     let mut ready: Vec<BinaryHeap<Reverse<(u64, TaskId)>>> = vec![BinaryHeap::new(); pools];
+    // Tasks whose predecessors are done but whose messages are still in flight, earliest arrival first.
+    let mut pending: BinaryHeap<Reverse<(u64, TaskId)>> = BinaryHeap::new();
     // Running tasks, smallest (finish time, id) first.
     let mut running: BinaryHeap<Reverse<(u64, TaskId)>> = BinaryHeap::new();
     let mut dirty: Vec<usize> = Vec::new();
@@ -104,27 +130,46 @@ pub fn replay_makespan(
                 running.push(Reverse((now.saturating_add(duration(t)), t)));
             }
         }
-        // Advance to the next finish time and retire every task finishing then.
-        let Some(&Reverse((time, _))) = running.peek() else {
-            break;
+        // Advance to the next event: a task finishing or a message arriving.
+        let next_finish = running.peek().map(|r| r.0 .0);
+        let next_arrival = pending.peek().map(|r| r.0 .0);
+        now = match (next_finish, next_arrival) {
+            (None, None) => break,
+            (Some(a), None) | (None, Some(a)) => a,
+            (Some(a), Some(b)) => a.min(b),
         };
-        now = time;
-        makespan = makespan.max(now);
+        while let Some(&Reverse((time, t))) = pending.peek() {
+            if time != now {
+                break;
+            }
+            pending.pop();
+            let sp = pool_of(t);
+            ready[sp].push(Reverse((now, t)));
+            mark(sp, &mut dirty, &mut is_dirty);
+        }
         while let Some(&Reverse((time, t))) = running.peek() {
             if time != now {
                 break;
             }
+            makespan = makespan.max(now);
             running.pop();
             let pool = pool_of(t);
             free[pool] += 1;
             mark(pool, &mut dirty, &mut is_dirty);
             for &s in graph.successors(t) {
+                let arrive = now.saturating_add(delay(t, s));
+                let ra = &mut ready_at[s as usize];
+                *ra = (*ra).max(arrive);
                 let r = &mut remaining[s as usize];
                 *r -= 1;
                 if *r == 0 {
-                    let sp = pool_of(s);
-                    ready[sp].push(Reverse((now, s)));
-                    mark(sp, &mut dirty, &mut is_dirty);
+                    if *ra > now {
+                        pending.push(Reverse((*ra, s)));
+                    } else {
+                        let sp = pool_of(s);
+                        ready[sp].push(Reverse((now, s)));
+                        mark(sp, &mut dirty, &mut is_dirty);
+                    }
                 }
             }
         }
@@ -164,6 +209,29 @@ mod tests {
         // Owner 2 folds onto process 0 when only 2 processes are asked for; missing durations count 0.
         assert_eq!(process_loads(&g, &[1, 2, 3, 4], 2), vec![5.0, 5.0]);
         assert!(process_loads(&g, &[1, 2, 3, 4, 5], 0).is_empty());
+    }
+
+    #[test]
+    fn mapped_owners_and_edge_delays() {
+        // Chain 0 -> 1 -> 2, durations 1, 2, 3: a delay of 5 on the middle edge adds exactly 5.
+        let g = graph(&[0, 0, 0], &[(0, 1), (1, 2)]);
+        let d = [1, 2, 3];
+        assert_eq!(replay_mapped(&g, &d, |_| 0, 1, 1, false, |_, _| 0), 6);
+        assert_eq!(
+            replay_mapped(&g, &d, |_| 0, 1, 1, false, |a, _| if a == 1 { 5 } else { 0 }),
+            11
+        );
+        // Two independent tasks remapped onto two processes run side by side.
+        let g = graph(&[0, 0], &[]);
+        assert_eq!(replay_mapped(&g, &[4, 4], |_| 0, 2, 1, false, |_, _| 0), 8);
+        assert_eq!(replay_mapped(&g, &[4, 4], |t| t, 2, 1, false, |_, _| 0), 4);
+        // While a message is in flight the core runs other ready work: 0 (1) then 2 (4) on process 0,
+        // 1 waits for 0's message (arrives at 1 + 3 = 4) on process 1 and ends at 6.
+        let g = graph(&[0, 1, 0], &[(0, 1)]);
+        assert_eq!(
+            replay_mapped(&g, &[1, 2, 4], |t| g.spec(t).owner, 2, 1, false, |_, _| 3),
+            6
+        );
     }
 
     #[test]

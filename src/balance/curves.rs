@@ -75,18 +75,54 @@ pub enum Curve {
 }
 
 /// Block ids of a grid of `blocks` (ids x fastest) in curve order.
+///
+/// Keys are unique, so the order is a bucket fill when the key space (8^bits) is at most 8 × the block
+/// count, else a sort of key·2³² + id (a sort of (key, id) pairs beyond 2³² blocks or 10 bits per axis).
 pub fn curve_order(blocks: [usize; 3], curve: Curve) -> Vec<usize> {
     let bits = bits_for(*blocks.iter().max().unwrap_or(&1));
-    let mut v: Vec<(u64, usize)> = Vec::with_capacity(blocks.iter().product());
+    let n: usize = blocks.iter().product();
+    let key = |x: usize, y: usize, z: usize| {
+        let c = [x as u32, y as u32, z as u32];
+        match curve {
+            Curve::Hilbert => hilbert_key(c, bits),
+            Curve::Morton => morton_key(c, bits),
+        }
+    };
+    let space = 1u128 << (3 * bits);
+    if space <= 8 * n as u128 {
+        let mut slot = vec![u32::MAX; space as usize];
+        let mut id = 0;
+        for z in 0..blocks[2] {
+            for y in 0..blocks[1] {
+                for x in 0..blocks[0] {
+                    slot[key(x, y, z) as usize] = id as u32;
+                    id += 1;
+                }
+            }
+        }
+        return slot
+            .into_iter()
+            .filter(|&s| s != u32::MAX)
+            .map(|s| s as usize)
+            .collect();
+    }
+    if bits <= 10 && n < 1 << 32 {
+        let mut v: Vec<u64> = Vec::with_capacity(n);
+        for z in 0..blocks[2] {
+            for y in 0..blocks[1] {
+                for x in 0..blocks[0] {
+                    v.push(key(x, y, z) << 32 | (x + blocks[0] * (y + blocks[1] * z)) as u64);
+                }
+            }
+        }
+        v.sort_unstable();
+        return v.into_iter().map(|k| (k & 0xffff_ffff) as usize).collect();
+    }
+    let mut v: Vec<(u64, usize)> = Vec::with_capacity(n);
     for z in 0..blocks[2] {
         for y in 0..blocks[1] {
             for x in 0..blocks[0] {
-                let c = [x as u32, y as u32, z as u32];
-                let k = match curve {
-                    Curve::Hilbert => hilbert_key(c, bits),
-                    Curve::Morton => morton_key(c, bits),
-                };
-                v.push((k, x + blocks[0] * (y + blocks[1] * z)));
+                v.push((key(x, y, z), x + blocks[0] * (y + blocks[1] * z)));
             }
         }
     }
@@ -139,11 +175,32 @@ mod tests {
 
     #[test]
     fn non_power_of_two_grids_cover_every_block_once() {
-        for b in [[3, 2, 5], [6, 6, 8], [1, 1, 7]] {
+        // bucket fill ([6, 6, 8], [3, 2, 5]), packed sort ([1, 1, 7], [40, 2, 1]), pair sort ([2000, 1, 1])
+        for b in [[3, 2, 5], [6, 6, 8], [1, 1, 7], [40, 2, 1], [2000, 1, 1]] {
             for c in [Curve::Hilbert, Curve::Morton] {
                 let mut o = curve_order(b, c);
                 o.sort_unstable();
                 assert_eq!(o, (0..b.iter().product()).collect::<Vec<_>>());
+            }
+        }
+    }
+
+    /// All three ordering paths agree with a plain sort by key.
+    #[test]
+    fn curve_order_matches_sorting_by_key() {
+        for b in [[5, 3, 4], [1, 1, 7], [40, 2, 1], [2000, 1, 1], [9, 9, 9]] {
+            for c in [Curve::Hilbert, Curve::Morton] {
+                let bits = bits_for(*b.iter().max().unwrap());
+                let mut ids: Vec<usize> = (0..b.iter().product()).collect();
+                ids.sort_by_key(|&id| {
+                    let p = coords(id, b);
+                    let p = [p[0] as u32, p[1] as u32, p[2] as u32];
+                    match c {
+                        Curve::Hilbert => hilbert_key(p, bits),
+                        Curve::Morton => morton_key(p, bits),
+                    }
+                });
+                assert_eq!(curve_order(b, c), ids, "{b:?} {c:?}");
             }
         }
     }

@@ -1,9 +1,9 @@
 //! The balancing step (section 4): at the end of every `balance.interval` steps, weigh every block
-//! (`balance.weights`), order the blocks along the strategy's curve, split greedily and hand the new
-//! owners to the pipeline, which moves the blocks whose owner changed. The numerics never see an owner,
-//! so the result stays bitwise identical whatever the weights and moves.
+//! (`balance.weights`), let the strategy ([`Distribute`]: curve split, diffusive, METIS) distribute them
+//! and hand the new owners to the pipeline, which moves the blocks whose owner changed. The numerics never
+//! see an owner, so the result stays bitwise identical whatever the weights and moves.
 
-use super::curves::Curve;
+use super::strategy::{BlockGraph, Distribute, Distribution};
 use crate::config::Weights;
 use crate::estimator::{Coefficients, Corrector};
 use crate::sim::Simulation;
@@ -13,8 +13,10 @@ use blockflow_kernels::Real;
 pub struct Balancer {
     /// What a block weighs.
     pub weights: Weights,
-    /// Curve of the assignment.
-    pub curve: Curve,
+    /// The distribution strategy.
+    pub strategy: Box<dyn Distribute>,
+    /// The block graph the strategy works on.
+    pub graph: BlockGraph,
     /// Virtual processes.
     pub processes: usize,
     /// Estimator coefficients (for `estimator` and `corrected`).
@@ -29,22 +31,25 @@ pub struct Balancer {
     pub seconds: f64,
     /// Balancing steps taken.
     pub steps: u64,
-    /// How the curve order is cut.
-    pub split: crate::config::SplitKind,
+    /// The block weights of the last balancing step.
+    last: Vec<f64>,
 }
 
 impl Balancer {
-    /// A balancer for `blocks` blocks.
+    /// A balancer of the blocks of `domain` with the distribution `strategy`.
     pub fn new(
         weights: Weights,
-        curve: Curve,
+        strategy: Box<dyn Distribute>,
         processes: usize,
         coefficients: Option<Coefficients>,
-        blocks: usize,
+        domain: &crate::domain::DomainSpec,
     ) -> Self {
+        let graph = BlockGraph::from_domain(domain);
+        let blocks = graph.len();
         Balancer {
             weights,
-            curve,
+            strategy,
+            graph,
             processes,
             coefficients,
             corrector: Corrector::new(blocks),
@@ -52,7 +57,7 @@ impl Balancer {
             migrated: 0,
             seconds: 0.0,
             steps: 0,
-            split: crate::config::SplitKind::Greedy,
+            last: Vec::new(),
         }
     }
 
@@ -94,10 +99,17 @@ impl Balancer {
         }
     }
 
-    /// The balancing step: weights, curve order, greedy split; returns the new owner of every block.
-    pub fn rebalance<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<u32> {
+    /// The balancing step: block weights, then the strategy's distribution starting from the current
+    /// `owners`; returns the new owner of every block (and, for METIS, the moves without relabelling).
+    pub fn rebalance<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64], owners: &[u32]) -> Distribution {
         self.steps += 1;
-        let w = self.block_weights(sim, block_load);
-        super::assign_with(sim.domain.blocks, &w, self.processes, self.curve, self.split)
+        self.last = self.block_weights(sim, block_load);
+        self.strategy
+            .distribute(&self.graph, &self.last, owners, self.processes)
+    }
+
+    /// The block weights of the last balancing step (empty before the first).
+    pub fn last_weights(&self) -> &[f64] {
+        &self.last
     }
 }

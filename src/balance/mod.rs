@@ -1,9 +1,15 @@
-//! Assignment of blocks to virtual processes: curve orders and prefix splits (the balancing issue adds
-//! diffusive and METIS strategies and dynamic rebalancing on top).
+//! Assignment of blocks to virtual processes: curve orders and prefix splits, and the load distribution
+//! strategies behind [`strategy::Distribute`] (static, curve split, diffusive, METIS) used by the dynamic
+//! rebalancing of [`dynamic::Balancer`].
 
 pub mod curves;
+pub mod diffusive;
 pub mod dynamic;
+pub mod graph_partition;
 pub mod split;
+pub mod strategy;
+
+pub use strategy::{BlockGraph, Distribute, Distribution};
 
 use curves::{curve_order, Curve};
 

@@ -65,28 +65,56 @@ pub fn optimal_split(weights: &[f64], processes: usize) -> Vec<u32> {
     if n == 0 || processes <= 1 {
         return vec![0; n];
     }
+    // Parts needed at capacity `cap` when packing in order (a block heavier than `cap` alone in a part), as
+    // the final packing below does it; stops as soon as it exceeds `processes`.
     let parts_needed = |cap: f64| {
         let (mut parts, mut load) = (1usize, 0.0);
         for &w in weights {
             if load + w > cap && load > 0.0 {
                 parts += 1;
+                if parts > processes {
+                    break;
+                }
                 load = 0.0;
             }
             load += w;
         }
         parts
     };
-    let (mut lo, mut hi) = (weights.iter().copied().fold(0.0, f64::max), weights.iter().sum::<f64>());
+    // The same count from prefix sums, P binary searches per test (exact up to rounding).
+    let mut prefix = Vec::with_capacity(n + 1);
+    let mut acc = 0.0;
+    prefix.push(0.0);
+    for &w in weights {
+        acc += w;
+        prefix.push(acc);
+    }
+    let fast_parts = |cap: f64| {
+        let (mut parts, mut i) = (0usize, 0usize);
+        while i < n && parts <= processes {
+            parts += 1;
+            let end = prefix.partition_point(|&x| x <= prefix[i] + cap) - 1;
+            i = end.max(i + 1);
+        }
+        parts
+    };
+    let (mut lo, mut hi) = (weights.iter().copied().fold(0.0, f64::max), acc);
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
         if mid <= lo || mid >= hi {
             break;
         }
-        if parts_needed(mid) <= processes {
+        if fast_parts(mid) <= processes {
             hi = mid;
         } else {
             lo = mid;
         }
+    }
+    // Rounding may separate the two counts: raise the capacity until the sequential packing fits.
+    let mut step = hi * f64::EPSILON;
+    while parts_needed(hi) > processes && hi < acc {
+        hi = (hi + step).min(acc);
+        step *= 2.0;
     }
     let cap = hi;
     let mut owner = vec![0u32; n];

@@ -116,6 +116,20 @@ pub struct ParticleCells {
     pub forces: Vec<BodyForce>,
 }
 
+impl ParticleCells {
+    /// Whether any cell of `owner` was covered by the last mapping (the mapping's fast path for blocks
+    /// with no body near depends on it).
+    pub fn owned(&self) -> bool {
+        self.owned
+    }
+
+    /// Sets [`ParticleCells::owned`] (for rebuilding an overlay from its serialised form; it must agree
+    /// with `owner`).
+    pub fn set_owned(&mut self, owned: bool) {
+        self.owned = owned;
+    }
+}
+
 /// Minimum-image offset along one axis.
 #[inline]
 fn min_image(d: f64, len: f64, periodic: bool) -> f64 {

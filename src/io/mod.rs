@@ -1,6 +1,7 @@
 //! Output: `summary.json`, the CSV time series and VTK files for ParaView.
 
 pub mod plots;
+pub mod plots_balance;
 pub mod series;
 pub mod summary;
 pub mod vtk;

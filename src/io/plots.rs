@@ -43,8 +43,8 @@ pub struct BlockSeries {
     pub points: Vec<(f64, f64, f64)>,
 }
 
-type DrawResult = std::result::Result<(), Box<dyn std::error::Error>>;
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+pub(super) type DrawResult = std::result::Result<(), Box<dyn std::error::Error>>;
+pub(super) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 /// A line of a chart panel: colour and points.
 type Line = (RGBColor, Vec<(f64, f64)>);
 
@@ -62,9 +62,9 @@ const PALETTE: [RGBColor; 10] = [
     RGBColor(0, 0, 0),
 ];
 
-const GRID: RGBColor = RGBColor(225, 225, 225);
+pub(super) const GRID: RGBColor = RGBColor(225, 225, 225);
 
-fn colour(i: usize) -> RGBColor {
+pub(super) fn colour(i: usize) -> RGBColor {
     PALETTE[i % PALETTE.len()]
 }
 
@@ -80,11 +80,11 @@ fn ensure_font() -> std::result::Result<(), String> {
     .clone()
 }
 
-fn font(size: f64) -> TextStyle<'static> {
+pub(super) fn font(size: f64) -> TextStyle<'static> {
     TextStyle::from(FontDesc::new(FontFamily::SansSerif, size, FontStyle::Normal)).color(&BLACK)
 }
 
-fn bold(size: f64) -> TextStyle<'static> {
+pub(super) fn bold(size: f64) -> TextStyle<'static> {
     TextStyle::from(FontDesc::new(FontFamily::SansSerif, size, FontStyle::Bold)).color(&BLACK)
 }
 
@@ -93,7 +93,7 @@ fn empty_err<T>(path: &Path, what: &str) -> Result<T> {
 }
 
 /// A white canvas of `size`: the whole area (to present) and the part below a bold title, with a margin.
-fn canvas<'a>(
+pub(super) fn canvas<'a>(
     path: &'a Path,
     size: (u32, u32),
     title: &str,
@@ -105,7 +105,7 @@ fn canvas<'a>(
 }
 
 /// Sets up the font, draws, and names the file in any error.
-fn render(path: &Path, draw: impl FnOnce() -> DrawResult) -> Result<()> {
+pub(super) fn render(path: &Path, draw: impl FnOnce() -> DrawResult) -> Result<()> {
     ensure_font().map_err(|e| Error::Io(format!("{}: {e}", path.display())))?;
     draw().map_err(|e| Error::Io(format!("{}: cannot write the figure: {e}", path.display())))
 }
@@ -142,7 +142,7 @@ pub fn median_mad(values: &[f64]) -> Option<(f64, f64)> {
 
 /// Decimals for tick labels over an axis span: one more than the finest tick step plotters picks (at most
 /// about ten ticks) needs, trailing zeros then dropped by [`tick`].
-fn decimals(span: f64) -> usize {
+pub(super) fn decimals(span: f64) -> usize {
     if span.is_nan() || span <= 0.0 {
         return 2;
     }
@@ -150,7 +150,7 @@ fn decimals(span: f64) -> usize {
 }
 
 /// A tick label: `v` with at most `d` decimals, trailing zeros dropped ("0.5", "1", "30000").
-fn tick(v: f64, d: usize) -> String {
+pub(super) fn tick(v: f64, d: usize) -> String {
     let s = format!("{v:.d$}");
     let s = if s.contains('.') {
         s.trim_end_matches('0').trim_end_matches('.')
@@ -165,7 +165,7 @@ fn tick(v: f64, d: usize) -> String {
 }
 
 /// [min, max] of finite values, widened when empty or degenerate.
-fn range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+pub(super) fn range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));

@@ -56,20 +56,33 @@ pub struct BalanceSummary {
     pub strategy: String,
     /// Steps per interval.
     pub interval: u64,
-    /// Load imbalance eq. (18) per interval (workload = CPU time of lbm + boundary tasks per owner).
+    /// Load imbalance eq. (18) per interval (workload m_tot eq. 16: CPU time of every task but the ghost
+    /// exchange, per owner process).
     pub imbalance: Vec<f64>,
     /// Median of `imbalance`.
     pub imbalance_median: f64,
-    /// Modeled time to solution: every step graph replayed with its measured task durations on P×T
-    /// dedicated cores (meaningful even when P×T exceeds this machine's cores).
+    /// The load imbalance the block weights predicted for each interval's assignment (null where the
+    /// assignment was not made from weights).
+    pub predicted_imbalance: Vec<Option<f64>>,
+    /// Modeled time to solution (`graph` model): every step graph replayed with its measured task
+    /// durations on P×T dedicated cores, messages between processes at α + bytes/β (meaningful even when
+    /// P×T exceeds this machine's cores).
     pub modeled_seconds: f64,
-    /// Time spent rebalancing (no dynamic balancing yet: 0).
+    /// Modeled time to solution (`bsp` model): per step the slowest process, messages included.
+    pub bsp_seconds: f64,
+    /// Measured seconds of the balancing steps (weights, partition, migration, re-arm).
     pub balance_seconds: f64,
+    /// Bytes of the serialised blocks migrated.
+    pub migrated_bytes: u64,
     /// Mean edge cut eq. (17) of the assignment (face b², edge b, corner 1 between blocks of different
     /// processes; non-cubic blocks use the shared face area and edge length).
     pub edge_cut_mean: f64,
     /// Blocks migrated by rebalancing.
     pub migrated_blocks: u64,
+    /// Message latency α (s) and bandwidth β (B/s) of the modeled times.
+    pub latency: f64,
+    /// β.
+    pub bandwidth: f64,
     /// Blocks per process.
     pub blocks_per_process: Vec<usize>,
     /// Bytes sent in cross-process messages.

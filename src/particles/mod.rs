@@ -134,6 +134,23 @@ impl BlockBodies {
         &mut *self.published[p].get()
     }
 
+    /// Replaces the list published after a sub-step of parity `p` and returns the old one.
+    ///
+    /// # Safety
+    /// No task may read or write this block's lists concurrently.
+    pub unsafe fn replace_published(&self, p: usize, list: Published) -> Published {
+        std::mem::replace(&mut *self.published[p].get(), list)
+    }
+
+    /// Replaces the last `rb` result of this block (bodies, deltas, contact counters) and returns the old
+    /// one.
+    ///
+    /// # Safety
+    /// No task may read or write this block's `work` concurrently.
+    pub unsafe fn replace_work(&self, work: Work) -> Work {
+        std::mem::replace(&mut *self.work.get(), work)
+    }
+
     /// The last `rb` result of this block.
     ///
     /// # Safety
