@@ -17,9 +17,14 @@ pub struct Cli {
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Run a scene and write summary.json, series.csv (and VTK with --vtk) to the output folder.
+    /// SIGINT / SIGTERM stop the run at the end of the graph run under way, write a checkpoint and
+    /// summary.json (`"status": "interrupted"`) and exit with 128 + the signal number; a second signal
+    /// ends it at once.
     Run {
-        /// Scene file (TOML), e.g. configs/channel.toml.
-        scene: PathBuf,
+        /// Scene file (TOML), e.g. configs/channel.toml. With --restart it may be left out; if given, it
+        /// must describe the checkpoint's physics.
+        #[arg(required_unless_present = "restart")]
+        scene: Option<PathBuf>,
         /// Override a key of the scene file: --set fluid.tau=0.6 (repeatable; same dotted path as the file).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
@@ -50,6 +55,22 @@ pub enum Command {
         /// Write a Chrome trace (Perfetto, chrome://tracing) of every task to FILE.
         #[arg(long, value_name = "FILE")]
         trace: Option<PathBuf>,
+        /// Write a checkpoint to OUT/checkpoints/step-<step> whenever the step is a multiple of N
+        /// (run.checkpoint_every).
+        #[arg(long, value_name = "N")]
+        checkpoint_every: Option<u64>,
+        /// Write a checkpoint when SECONDS of wall-clock time have passed since the last one
+        /// (run.checkpoint_wall).
+        #[arg(long, value_name = "SECONDS")]
+        checkpoint_wall: Option<f64>,
+        /// Checkpoints to keep, the newest (run.checkpoints_kept, default 2).
+        #[arg(long, value_name = "K")]
+        checkpoints_kept: Option<usize>,
+        /// Continue from a checkpoint file (or the newest one in a folder or its checkpoints/ subfolder).
+        /// The configuration is the checkpoint's, with this command line's overrides of run.*,
+        /// processes.* and balance.* keys on top; the final state is bitwise the uninterrupted run's.
+        #[arg(long, value_name = "PATH")]
+        restart: Option<PathBuf>,
     },
     /// Print the machine's topology and the thread placement the options would get.
     Topology {
@@ -98,7 +119,8 @@ pub enum Command {
         /// Threads per process T of the strategies.
         #[arg(long, default_value_t = 1)]
         threads_per_process: usize,
-        /// Strategies, comma-separated: none, hilbert, morton, diffusive, metis, steal-global.
+        /// Strategies, comma-separated: none, hilbert, morton, diffusive, metis, steal-global; a suffix
+        /// @cells, @estimator, @measured or @corrected sets the block weights of one (hilbert@estimator).
         #[arg(
             long,
             value_delimiter = ',',
@@ -126,6 +148,54 @@ pub enum Command {
         record_threads: Option<usize>,
         /// Output folder.
         #[arg(long, default_value = "out/study")]
+        out: PathBuf,
+    },
+    /// Run a scene over every combination of the varied keys: sweep.csv (values, status, wall and core
+    /// seconds, MLUPS, observables) and sweep.png (error against run time, log-log, fitted orders).
+    Sweep {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// KEY=V1,V2,... (repeatable; the first key drives convergence, e.g. scene.resolution=16,32,64).
+        #[arg(long, value_name = "KEY=V1,V2,...", required = true)]
+        vary: Vec<String>,
+        /// Fixed override (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Runs per combination; the fastest wall time is kept.
+        #[arg(long, default_value_t = 1)]
+        repeat: usize,
+        /// Number of time steps (default: the scene's).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Observable plotted as the error (default: the first whose name contains "error").
+        #[arg(long)]
+        error: Option<String>,
+        /// Output folder.
+        #[arg(long, default_value = "out/sweep")]
+        out: PathBuf,
+    },
+    /// Stability map: run every combination of one or two keys for a fixed number of steps with the
+    /// instability detector on; stress.png and stress.csv say stable, inaccurate or unstable (at which step).
+    Stress {
+        /// Scene file (TOML).
+        scene: PathBuf,
+        /// KEY=V1,V2,... or KEY=A:B:N or KEY=A:B:N:log (one or two).
+        #[arg(long, value_name = "KEY=RANGE", required = true)]
+        vary: Vec<String>,
+        /// Fixed override (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Steps of every run (default: the scene's).
+        #[arg(long)]
+        steps: Option<u64>,
+        /// Error observable for "inaccurate" (default: the first whose name contains "error").
+        #[arg(long)]
+        error: Option<String>,
+        /// A stable run with the error observable above this is "inaccurate".
+        #[arg(long)]
+        max_error: Option<f64>,
+        /// Output folder.
+        #[arg(long, default_value = "out/stress")]
         out: PathBuf,
     },
     /// Benchmarks that print tables.
@@ -166,6 +236,16 @@ pub enum BenchKind {
     /// Cost of the balancing step: curve keys and splits for 100 000 blocks, diffusive and METIS on the
     /// hopper's 288 blocks for 32 processes.
     Balance,
+    /// Run time against error: channel, couette, Taylor-Green and the drag array (CLI and SBB, three solid
+    /// fractions) over resolution, f64 and f32; Pareto front per scene.
+    Accuracy {
+        /// The CI size (about 3 minutes).
+        #[arg(long)]
+        quick: bool,
+        /// Output folder (one sweep per scene).
+        #[arg(long, default_value = "out/accuracy")]
+        out: PathBuf,
+    },
 }
 
 /// Executes a parsed command line.
@@ -183,9 +263,27 @@ pub fn execute(cli: Cli) -> Result<()> {
             balance,
             interval,
             trace,
+            checkpoint_every,
+            checkpoint_wall,
+            checkpoints_kept,
+            restart,
         } => {
             if vtk == Some(0) {
                 return Err(Error::Config("--vtk 0: must be at least 1".into()));
+            }
+            if let Some(n) = checkpoint_every {
+                set.push(format!("run.checkpoint_every={n}"));
+            }
+            if let Some(w) = checkpoint_wall {
+                if !w.is_finite() {
+                    return Err(Error::Config(format!(
+                        "--checkpoint-wall {w}: must be a finite number of seconds > 0"
+                    )));
+                }
+                set.push(format!("run.checkpoint_wall={w:?}"));
+            }
+            if let Some(k) = checkpoints_kept {
+                set.push(format!("run.checkpoints_kept={k}"));
             }
             // Command-line options are overrides of the stable keys, checked like the file's values.
             if let Some(p) = processes {
@@ -203,14 +301,26 @@ pub fn execute(cli: Cli) -> Result<()> {
             if let Some(i) = interval {
                 set.push(format!("balance.interval={i}"));
             }
-            let cfg = crate::config::load(&scene, &set)?;
+            let (cfg, restart) = match &restart {
+                Some(path) => {
+                    let ck = crate::checkpoint::Checkpoint::read(&crate::checkpoint::resolve(path)?)?;
+                    let cfg = crate::checkpoint::restart_config(&ck, scene.as_deref(), &set)?;
+                    (cfg, Some(std::sync::Arc::new(ck)))
+                }
+                None => (
+                    crate::config::load(scene.as_deref().expect("clap requires SCENE without --restart"), &set)?,
+                    None,
+                ),
+            };
+            crate::checkpoint::install_signal_handlers()?;
             let opts = crate::runner::RunOptions {
                 steps,
                 out,
                 vtk_every: vtk,
                 progress: true,
-                scene_path: Some(scene.clone()),
+                scene_path: scene.clone(),
                 trace,
+                restart,
             };
             let dir = crate::runner::output_dir(&cfg, &opts);
             let s = crate::runner::run(&cfg, &opts)?;
@@ -304,15 +414,11 @@ pub fn execute(cli: Cli) -> Result<()> {
             }
             let weights = match weights {
                 None => None,
-                Some(w) => Some(
-                    serde_json::from_value::<crate::config::Weights>(serde_json::Value::String(w.clone())).map_err(
-                        |_| {
-                            Error::Config(format!(
-                                "--weights {w}: unknown; use cells, estimator, measured or corrected"
-                            ))
-                        },
-                    )?,
-                ),
+                Some(w) => Some(crate::study::run::parse_weights(&w).ok_or_else(|| {
+                    Error::Config(format!(
+                        "--weights {w}: unknown; use cells, estimator, measured or corrected"
+                    ))
+                })?),
             };
             let opts = crate::study::run::StudyOptions {
                 scene,
@@ -334,6 +440,80 @@ pub fn execute(cli: Cli) -> Result<()> {
             }
             text += &format!("results in {}\n", out.display());
             print_out(&text);
+            Ok(())
+        }
+        Command::Sweep {
+            scene,
+            vary,
+            set,
+            repeat,
+            steps,
+            error,
+            out,
+        } => {
+            if repeat == 0 {
+                return Err(Error::Config("--repeat 0: must be at least 1".into()));
+            }
+            let vary = vary
+                .iter()
+                .map(|v| crate::sweep::parse_vary(v))
+                .collect::<Result<Vec<_>>>()?;
+            let opts = crate::sweep::SweepOptions {
+                scene,
+                vary,
+                sets: set,
+                repeat,
+                steps,
+                error,
+                out: out.clone(),
+            };
+            let r = crate::sweep::sweep(&opts)?;
+            print_out(&format!(
+                "{}results in {}\n",
+                crate::sweep::to_markdown(&r),
+                out.display()
+            ));
+            Ok(())
+        }
+        Command::Bench {
+            which: BenchKind::Accuracy { quick, out },
+        } => {
+            let cases = crate::bench_accuracy::run(quick, &out, &crate::bench_accuracy::configs_dir())?;
+            print_out(&format!(
+                "{}results in {}\n",
+                crate::bench_accuracy::to_markdown(&cases),
+                out.display()
+            ));
+            Ok(())
+        }
+        Command::Stress {
+            scene,
+            vary,
+            set,
+            steps,
+            error,
+            max_error,
+            out,
+        } => {
+            let vary = vary
+                .iter()
+                .map(|v| crate::stress::parse_range(v))
+                .collect::<Result<Vec<_>>>()?;
+            let opts = crate::stress::StressOptions {
+                scene,
+                vary,
+                sets: set,
+                steps,
+                error,
+                max_error,
+                out: out.clone(),
+            };
+            let r = crate::stress::stress(&opts)?;
+            print_out(&format!(
+                "{}results in {}\n",
+                crate::stress::to_markdown(&r),
+                out.display()
+            ));
             Ok(())
         }
         Command::Bench {

@@ -263,8 +263,8 @@ impl Default for FluidConfig {
     }
 }
 
-/// `[run]`: run length and output.
-#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+/// `[run]`: run length, output and checkpoints.
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
     /// Number of time steps; absent: the scene's own (e.g. to steady state).
@@ -275,6 +275,33 @@ pub struct RunConfig {
     pub series_every: Option<u64>,
     /// Write VTK output every this many steps (default: never).
     pub vtk_every: Option<u64>,
+    /// Write a checkpoint (`OUT/checkpoints/step-<step>`) whenever the step is a multiple of this
+    /// (default: never; `--checkpoint-every`).
+    pub checkpoint_every: Option<u64>,
+    /// Write a checkpoint when this many wall-clock seconds have passed since the last one (default:
+    /// never; `--checkpoint-wall`).
+    pub checkpoint_wall: Option<f64>,
+    /// Checkpoints kept: after each write all but the newest this many are deleted (default 2).
+    #[serde(default = "d_checkpoints_kept")]
+    pub checkpoints_kept: usize,
+}
+
+fn d_checkpoints_kept() -> usize {
+    crate::checkpoint::DEFAULT_KEPT
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            steps: None,
+            out: None,
+            series_every: None,
+            vtk_every: None,
+            checkpoint_every: None,
+            checkpoint_wall: None,
+            checkpoints_kept: d_checkpoints_kept(),
+        }
+    }
 }
 
 /// `processes.pin`: a policy name or an explicit core list.
@@ -658,6 +685,22 @@ impl Config {
             if v == Some(0) {
                 return config_err(format!("{name} = 0: must be at least 1 (leave it out to disable)"));
             }
+        }
+        if self.run.checkpoint_every == Some(0) {
+            return config_err("run.checkpoint_every = 0: must be at least 1 step (leave it out to disable)");
+        }
+        if let Some(w) = self.run.checkpoint_wall {
+            if !(w.is_finite() && w > 0.0) {
+                return config_err(format!(
+                    "run.checkpoint_wall = {w}: must be a finite number of seconds > 0 (leave it out to disable)"
+                ));
+            }
+        }
+        if self.run.checkpoints_kept == 0 || self.run.checkpoints_kept > 1_000_000 {
+            return config_err(format!(
+                "run.checkpoints_kept = {}: must be between 1 and 1000000",
+                self.run.checkpoints_kept
+            ));
         }
         Ok(())
     }

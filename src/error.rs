@@ -53,6 +53,19 @@ pub enum Error {
     /// The rigid bodies left what the solver can follow (a body moved too far in one sub-step, or out of
     /// the blocks that had tasks). The message names the body, block and step.
     ParticlesUnstable(String),
+    /// A checkpoint could not be used for a restart (unreadable, not a checkpoint, another format version,
+    /// truncated, corrupt, or from another scene). The message names the file and the reason.
+    Checkpoint(String),
+    /// SIGINT or SIGTERM stopped the run after `step` steps; a checkpoint of that step was written
+    /// (summary.json says `"status": "interrupted"`).
+    Interrupted {
+        /// The signal (2 = SIGINT, 15 = SIGTERM).
+        signal: i32,
+        /// Steps completed.
+        step: u64,
+        /// The checkpoint written at `step`, if one could be.
+        checkpoint: Option<String>,
+    },
 }
 
 impl fmt::Display for Error {
@@ -60,7 +73,25 @@ impl fmt::Display for Error {
         match self {
             Error::Config(m) | Error::Io(m) => f.write_str(m),
             Error::Unstable(i) => i.fmt(f),
-            Error::ParticlesUnstable(m) => f.write_str(m),
+            Error::ParticlesUnstable(m) | Error::Checkpoint(m) => f.write_str(m),
+            Error::Interrupted {
+                signal,
+                step,
+                checkpoint,
+            } => {
+                write!(
+                    f,
+                    "interrupted by {} at step {step}",
+                    crate::checkpoint::signal_name(*signal)
+                )?;
+                match checkpoint {
+                    Some(c) => write!(
+                        f,
+                        "; checkpoint {c} written, continue with `blockflow run --restart {c}`"
+                    ),
+                    None => f.write_str("; no checkpoint written"),
+                }
+            }
         }
     }
 }
@@ -68,11 +99,15 @@ impl fmt::Display for Error {
 impl std::error::Error for Error {}
 
 impl Error {
-    /// Process exit code: 1 for configuration and I/O errors, 3 for an unstable run.
+    /// Process exit code: 1 for configuration and I/O errors (2 is clap's, for a bad command line), 3 for
+    /// an unstable run, 4 for a checkpoint that cannot be restarted from, 128 + the signal number for a
+    /// run stopped by a signal (130 for SIGINT, 143 for SIGTERM, as shells report them).
     pub fn exit_code(&self) -> i32 {
         match self {
             Error::Config(_) | Error::Io(_) => 1,
             Error::Unstable(_) | Error::ParticlesUnstable(_) => 3,
+            Error::Checkpoint(_) => 4,
+            Error::Interrupted { signal, .. } => 128 + signal,
         }
     }
 }

@@ -131,24 +131,43 @@ pub fn cell_moments<T: Real>(b: &Block<T>, p: usize, i: usize, force: [f64; 3]) 
     blockflow_kernels::trt::moments(&f, force)
 }
 
-/// The first fluid cell (x fastest) of field `p` whose density or velocity is non-finite or whose |u|
-/// exceeds `limit`: (global cell, δρ, u). Used only after a sweep reported trouble.
+/// The bad cell of field `p` (density or velocity non-finite, or |u| above `limit`) at the centre of the
+/// block's bad region: the one with the most bad neighbours among its 18 D3Q19 neighbours, the first in
+/// x-fastest order among equals; (global cell, δρ, u). A NaN injected into one cell spreads to its 18
+/// neighbours in one step, so one step later this names the injected cell itself. Used only after a sweep
+/// reported trouble.
 pub fn find_bad_cell<T: Real>(
     b: &Block<T>,
     p: usize,
     limit: f64,
     force: [f64; 3],
 ) -> Option<([usize; 3], f64, [f64; 3])> {
-    let mut found = None;
+    let mut bad: Vec<([usize; 3], f64, [f64; 3])> = Vec::new();
     b.for_each_fluid(|g, i| {
-        if found.is_some() {
-            return;
-        }
         let (r, u) = cell_moments(b, p, i, force);
         let u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
         if !r.is_finite() || u2.is_nan() || u2 > limit * limit {
-            found = Some((g, r, u));
+            bad.push((g, r, u));
         }
     });
-    found
+    let set: std::collections::HashSet<[usize; 3]> = bad.iter().map(|c| c.0).collect();
+    let neighbours = |g: [usize; 3]| {
+        blockflow_kernels::d3q19::C[1..]
+            .iter()
+            .filter(|c| {
+                let n = [0, 1, 2].map(|a| g[a] as i64 + c[a] as i64);
+                n.iter().all(|&x| x >= 0) && set.contains(&n.map(|x| x as usize))
+            })
+            .count()
+    };
+    let mut best: Option<usize> = None;
+    let mut most = 0;
+    for (k, c) in bad.iter().enumerate() {
+        let n = neighbours(c.0);
+        if best.is_none() || n > most {
+            best = Some(k);
+            most = n;
+        }
+    }
+    best.map(|k| bad[k])
 }

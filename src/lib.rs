@@ -6,11 +6,13 @@
 //! scenes ([`scenes`]), output ([`io`]) and the command line ([`cli`]).
 
 pub mod balance;
+pub mod bench_accuracy;
 pub mod bench_kernel;
 pub mod bench_rigid;
 pub mod bench_scheduler;
 pub mod block;
 pub mod calibrate;
+pub mod checkpoint;
 pub mod cli;
 pub mod config;
 pub mod coupling;
@@ -22,8 +24,11 @@ pub mod geometry;
 pub mod io;
 pub mod particles;
 pub mod pipeline;
+pub mod run_setup;
 pub mod runner;
 pub mod scenes;
 pub mod serialise;
 pub mod sim;
+pub mod stress;
 pub mod study;
+pub mod sweep;

@@ -6,9 +6,30 @@ fn main() {
     // The allowed cores are read once here, on the un-pinned main thread (core_affinity reports the
     // calling thread's mask).
     blockflow_scheduler::topology::init_allowed_cores();
-    let cli = blockflow::cli::Cli::parse();
+    let cli = match blockflow::cli::Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => usage_error(e),
+    };
     if let Err(e) = blockflow::cli::execute(cli) {
         eprintln!("error: {e}");
         std::process::exit(e.exit_code());
     }
+}
+
+/// A command-line error of clap: help and version print as usual; anything else is one line (clap's own
+/// first paragraph joined, without the tip and usage blocks) and exit code 2.
+fn usage_error(e: clap::Error) -> ! {
+    use clap::error::ErrorKind;
+    if matches!(
+        e.kind(),
+        ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+    ) {
+        e.exit();
+    }
+    let text = e.to_string();
+    let first: Vec<&str> = text.lines().map(str::trim).take_while(|l| !l.is_empty()).collect();
+    let first = first.join(" ");
+    let first = first.strip_prefix("error: ").unwrap_or(&first);
+    eprintln!("error: {first} (see blockflow --help)");
+    std::process::exit(2);
 }

@@ -1,7 +1,7 @@
 //! `blockflow run`: builds a scene, steps it, writes summary.json, series.csv and optional VTK.
 
-use crate::balance::{self, curves::Curve};
-use crate::config::{Config, PinConfig, Precision, StealConfig, Strategy};
+use crate::checkpoint::{self, BalanceState, Checkpoint, CheckpointInput};
+use crate::config::{Config, Precision};
 use crate::domain::DomainSpec;
 use crate::error::{io_err, Error, Result};
 use crate::io::series::{ParticleRow, ParticleSeries, Series};
@@ -13,8 +13,6 @@ use crate::scenes::{self, FluidView, Scene};
 use crate::sim::Simulation;
 use blockflow_kernels::rigid::RigidParams;
 use blockflow_kernels::Real;
-use blockflow_scheduler::executor::{Executor, PoolConfig, Steal};
-use blockflow_scheduler::topology::{placement, PinPolicy, Topology};
 use glam::DVec3;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::io::IsTerminal;
@@ -36,6 +34,9 @@ pub struct RunOptions {
     pub scene_path: Option<PathBuf>,
     /// `--trace FILE`: write a Chrome trace of every task.
     pub trace: Option<PathBuf>,
+    /// `--restart PATH`: continue from this checkpoint (read and checked; the configuration must be
+    /// [`crate::checkpoint::restart_config`]'s).
+    pub restart: Option<std::sync::Arc<Checkpoint>>,
 }
 
 impl<T: Real> FluidView for Simulation<T> {
@@ -180,12 +181,103 @@ fn particle_row<T: Real>(sim: &Simulation<T>) -> Option<ParticleRow> {
     })
 }
 
+/// Writes `bytes` to `path` through `path.tmp` and a rename: the file is either absent, the old one or
+/// complete, never half-written.
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = PathBuf::from(tmp);
+    if let Err(e) = std::fs::write(&tmp, bytes) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_err(&tmp, e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        io_err(path, e)
+    })
+}
+
 fn write_summary(dir: &Path, s: &Summary) -> Result<()> {
-    let path = dir.join("summary.json");
-    let tmp = dir.join("summary.json.tmp");
     let text = serde_json::to_string_pretty(s).expect("summary serialises");
-    std::fs::write(&tmp, text + "\n").map_err(|e| io_err(&tmp, e))?;
-    std::fs::rename(&tmp, &path).map_err(|e| io_err(&path, e))
+    write_atomic(&dir.join("summary.json"), (text + "\n").as_bytes())
+}
+
+/// Creates the output folder and checks that a file can be written in it (before the first step).
+fn check_writable(dir: &Path) -> Result<()> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| Error::Io(format!("output folder {}: cannot be created: {e}", dir.display())))?;
+    let probe = dir.join(format!(".blockflow-write-check-{}", std::process::id()));
+    std::fs::write(&probe, b"blockflow")
+        .and_then(|_| std::fs::remove_file(&probe))
+        .map_err(|e| Error::Io(format!("output folder {} is not writable: {e}", dir.display())))
+}
+
+/// Bytes available to a new allocation: the smallest of `MemAvailable` (/proc/meminfo), the cgroup v2
+/// `memory.max` and four fifths of the soft `RLIMIT_AS` (None where /proc/meminfo cannot be read).
+pub fn available_memory() -> Option<u128> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u128 = line.split_whitespace().nth(1)?.parse().ok()?;
+    let mut avail = kb * 1024;
+    // A container's or batch job's cgroup limit (v2) and the process's own address-space limit bound it
+    // too (with a fifth left for the binary, the threads' stacks and the allocator).
+    if let Some(max) = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|t| t.trim().parse::<u128>().ok())
+    {
+        avail = avail.min(max);
+    }
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes the struct it is given.
+    if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } == 0 && lim.rlim_cur != libc::RLIM_INFINITY {
+        avail = avail.min(lim.rlim_cur as u128 / 5 * 4);
+    }
+    Some(avail)
+}
+
+/// The memory a scene's state needs, estimated before anything is allocated: (total, PDFs, flags,
+/// particles) in bytes. PDFs: two fields of 19 values per cell with the ghost layer, in the precision;
+/// flags: one byte per cell with the ghost layer; particles: each body's copies (two published lists, the
+/// rigid-body result, shadows) and the per-block bookkeeping.
+pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<(u128, u128, u128, u128)> {
+    let d = scenes::domain_for(&cfg.domain, scene)?;
+    let blocks: u128 = d.blocks.iter().map(|&x| x as u128).product();
+    let full: u128 = d.block_size.iter().map(|&x| x as u128 + 2).product();
+    let bytes: u128 = match cfg.fluid.precision {
+        Precision::F64 => 8,
+        Precision::F32 => 4,
+    };
+    let fluid = cfg.fluid.enabled && !scene.geometry.no_fluid;
+    let pdf = if fluid { 2 * 19 * blocks * full * bytes } else { 0 };
+    let flags = blocks * full;
+    let particles = match &scene.particles {
+        Some(ps) => {
+            let body = std::mem::size_of::<blockflow_kernels::rigid::Body>() as u128;
+            ps.bodies.len() as u128 * body * 8 + blocks * 1024
+        }
+        None => 0,
+    };
+    Ok((pdf + flags + particles, pdf, flags, particles))
+}
+
+/// Refuses a scene whose estimated memory ([`estimate_memory`]) exceeds what the machine has available.
+pub fn check_memory(cfg: &Config, scene: &Scene) -> Result<()> {
+    let (total, pdf, flags, particles) = estimate_memory(cfg, scene)?;
+    if let Some(avail) = available_memory() {
+        if total > avail {
+            return Err(Error::Config(format!(
+                "scene {} needs an estimated {total} bytes ({:.1} GiB: PDFs {pdf}, flags {flags}, particles \
+                 {particles}) but the machine has {avail} bytes available (MemAvailable, cgroup and address-space limits); use fewer or smaller \
+                 blocks (domain.blocks, domain.block_size, scene.resolution)",
+                scene.name,
+                total as f64 / (1u64 << 30) as f64
+            )));
+        }
+    }
+    Ok(())
 }
 
 fn vtk_step<T: Real>(vtk: &mut VtkSeries, pvtk: Option<&mut ParticleVtkSeries>, sim: &Simulation<T>) -> Result<()> {
@@ -254,141 +346,7 @@ fn vtk_step<T: Real>(vtk: &mut VtkSeries, pvtk: Option<&mut ParticleVtkSeries>, 
     Ok(())
 }
 
-/// The pinning policy of a configuration.
-pub fn pin_policy(cfg: &Config) -> Result<PinPolicy> {
-    match &cfg.processes.pin {
-        PinConfig::Name(s) => s
-            .parse::<PinPolicy>()
-            .map_err(|e| Error::Config(format!("processes.pin = {s:?}: {e}"))),
-        PinConfig::Cores(v) => Ok(PinPolicy::List(v.clone())),
-    }
-}
-
-/// Starts the worker threads of `[processes]`: P × T threads, pinned by `processes.pin`.
-pub fn make_executor(cfg: &Config) -> Result<Executor> {
-    let pr = &cfg.processes;
-    let topo = Topology::detect();
-    let cores = placement(&topo, pr.count, pr.threads_per_process, &pin_policy(cfg)?)
-        .map_err(|e| Error::Config(format!("processes.pin: {e}")))?;
-    Executor::new(PoolConfig {
-        processes: pr.count,
-        threads_per_process: pr.threads_per_process,
-        cores,
-        steal: match pr.steal {
-            StealConfig::Process => Steal::Process,
-            StealConfig::Global => Steal::Global,
-        },
-    })
-    .map_err(|e| Error::Config(format!("[processes]: {e}")))
-}
-
-/// Block weights of `balance.weights`: fluid cells, or the estimate of eq. (15) with the coefficients
-/// of `balance.coefficients` (the file is read and checked here; errors name the file and key).
-pub fn block_weights<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<f64>> {
-    use crate::config::Weights;
-    match cfg.balance.weights {
-        // Nothing is measured before the first interval: `measured` starts from cells.
-        Weights::Cells | Weights::Measured => {
-            let dry = sim.fluid_cells() == 0;
-            Ok(sim
-                .blocks
-                .iter()
-                .map(|b| if dry { b.layout.interior_cells() } else { b.current_fluid_cells() } as f64)
-                .collect())
-        }
-        Weights::Estimator | Weights::Corrected => {
-            let c = load_coefficients(cfg)?;
-            Ok((0..sim.blocks.len())
-                .map(|b| c.total(&crate::calibrate::quantities(sim, b)))
-                .collect())
-        }
-    }
-}
-
-/// The estimator coefficients of `balance.coefficients`; the error names the file and key.
-pub fn load_coefficients(cfg: &Config) -> Result<crate::estimator::Coefficients> {
-    crate::estimator::Coefficients::load(Path::new(&cfg.balance.coefficients)).map_err(|e| {
-        Error::Config(format!(
-            "balance.coefficients: {e}; run `blockflow calibrate` to write one"
-        ))
-    })
-}
-
-/// Owner process of every block by `balance.weights` (see [`block_weights`]): curve order
-/// (`balance.strategy`; `none` is the static Hilbert split), greedy prefix split.
-pub fn assignment_weighted<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Vec<u32>> {
-    let curve = match cfg.balance.strategy {
-        Strategy::None | Strategy::Hilbert | Strategy::Diffusive | Strategy::Metis => Curve::Hilbert,
-        Strategy::Morton => Curve::Morton,
-    };
-    let weights = block_weights(cfg, sim)?;
-    Ok(balance::assign_with(
-        sim.domain.blocks,
-        &weights,
-        cfg.processes.count,
-        curve,
-        cfg.balance.split,
-    ))
-}
-
-/// Owner process of every block: curve order (`balance.strategy`; `none` is the static Hilbert split),
-/// greedy prefix split by fluid-cell count (cell count in scenes without fluid).
-pub fn assignment<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Vec<u32> {
-    let curve = match cfg.balance.strategy {
-        Strategy::None | Strategy::Hilbert | Strategy::Diffusive | Strategy::Metis => Curve::Hilbert,
-        Strategy::Morton => Curve::Morton,
-    };
-    // Without fluid (dry rigid-body scenes) every block weighs its cell count.
-    let dry = sim.fluid_cells() == 0;
-    let weights: Vec<f64> = sim
-        .blocks
-        .iter()
-        .map(|b| if dry { b.layout.interior_cells() } else { b.fluid_cells } as f64)
-        .collect();
-    balance::assign(sim.domain.blocks, &weights, cfg.processes.count, curve)
-}
-
-/// The balancer of `balance.strategy` on `processes.count` processes (none for `"none"`: the
-/// assignment never changes).
-pub fn make_balancer<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Option<crate::balance::dynamic::Balancer>> {
-    use crate::config::Weights;
-    if cfg.balance.strategy == Strategy::None {
-        return Ok(None);
-    }
-    let coeffs = match cfg.balance.weights {
-        Weights::Estimator | Weights::Corrected => Some(load_coefficients(cfg)?),
-        _ => None,
-    };
-    Ok(Some(crate::balance::dynamic::Balancer::new(
-        cfg.balance.weights,
-        crate::balance::strategy::strategy(&cfg.balance),
-        cfg.processes.count,
-        coeffs,
-        &sim.domain,
-    )))
-}
-
-/// The pipeline of a run: the executor of `[processes]`, the initial assignment by `balance.weights`
-/// (with the load imbalance those weights predict for the first interval), the balancer, the message
-/// price of the modeled times, and the first touch of every block by its owner.
-pub fn make_pipeline<T: Real>(cfg: &Config, sim: &Simulation<T>) -> Result<Pipeline<T>> {
-    let exec = make_executor(cfg)?;
-    let owners = assignment_weighted(cfg, sim)?;
-    let weights = block_weights(cfg, sim)?;
-    let mut pipe = Pipeline::new(sim, exec, owners, cfg.processes.steps_per_graph, cfg.balance.interval);
-    pipe.surface = cfg.particles.boundary;
-    pipe.force_averaging = cfg.particles.force_averaging;
-    pipe.comm = crate::study::model::CommModel {
-        latency: cfg.balance.latency,
-        bandwidth: cfg.balance.bandwidth,
-    };
-    pipe.set_predicted_imbalance(&weights);
-    pipe.balancer = make_balancer(cfg, sim)?;
-    pipe.first_touch(sim);
-    Ok(pipe)
-}
-
-pub use crate::balance::edge_cut_mean;
+pub use crate::run_setup::*;
 
 fn median(v: &[f64]) -> f64 {
     if v.is_empty() {
@@ -435,27 +393,73 @@ fn write_intervals(path: &Path, intervals: &[crate::pipeline::IntervalStats]) ->
         }
         text.push('\n');
     }
-    std::fs::write(path, text).map_err(|e| io_err(path, e))
+    write_atomic(path, text.as_bytes())
+}
+
+/// The configuration a run's output records (effective.toml and every checkpoint): `cfg` with the
+/// resolved step count, output folder and VTK interval filled in, so that the file alone reproduces the run.
+fn effective_text(cfg: &Config, steps: u64, dir: &Path, vtk_every: Option<u64>) -> String {
+    let mut c = cfg.clone();
+    c.run.steps = Some(steps);
+    let abs = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf());
+    c.run.out = Some(abs.display().to_string());
+    c.run.vtk_every = vtk_every;
+    c.to_toml()
 }
 
 fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summary> {
     let steps = opts.steps.or(cfg.run.steps).unwrap_or(scene.steps);
     let dir = output_dir(cfg, opts);
-    std::fs::create_dir_all(&dir).map_err(|e| io_err(&dir, e))?;
+    if let Some(ck) = &opts.restart {
+        if ck.step > steps {
+            return Err(Error::Config(format!(
+                "run.steps = {steps}, but checkpoint {} is at step {}; ask for at least that many (--steps)",
+                ck.path.display(),
+                ck.step
+            )));
+        }
+    }
+    // Before anything is allocated or written: the memory estimate, then the output folder.
+    check_memory(cfg, &scene)?;
+    check_writable(&dir)?;
+    let ck_dir = dir.join("checkpoints");
+    let checkpointing = cfg.run.checkpoint_every.is_some() || cfg.run.checkpoint_wall.is_some();
+    if checkpointing {
+        check_writable(&ck_dir)?;
+    }
     let _ = std::fs::remove_file(dir.join("summary.json"));
-    let eff = dir.join("effective.toml");
-    std::fs::write(&eff, cfg.to_toml()).map_err(|e| io_err(&eff, e))?;
+    let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
+    let eff_text = effective_text(cfg, steps, &dir, vtk_every);
+    write_atomic(&dir.join("effective.toml"), eff_text.as_bytes())?;
     let mut sim = build_sim::<T>(cfg, &scene)?;
     let mut pipe = make_pipeline(cfg, &sim)?;
+    if let Some(ck) = &opts.restart {
+        let owners = pipe.owners().to_vec();
+        ck.restore(&mut sim, &owners, pipe.executor())?;
+        pipe.resume_at(sim.step);
+        if let (Some(b), Some(st)) = (pipe.balancer.as_mut(), ck.balance.as_ref()) {
+            st.restore(b);
+        }
+    }
+    let start_step = sim.step;
     if opts.trace.is_some() {
         pipe.enable_trace();
     }
     let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
-    let mut series = Series::create(&dir.join("series.csv"))?;
-    series.push(0, &sim.diagnostics())?;
+    // Time series are written to `.partial` files and renamed when the run ends: a run that fails
+    // leaves no file that looks like a finished result.
+    let series_path = dir.join("series.csv");
+    let pseries_path = dir.join("particles.csv");
+    let partial = |p: &Path| {
+        let mut s = p.as_os_str().to_owned();
+        s.push(".partial");
+        PathBuf::from(s)
+    };
+    let mut series = Series::create(&partial(&series_path))?;
+    series.push(sim.step, &sim.diagnostics())?;
     let mut pseries = match particle_row(&sim) {
         Some(row) => {
-            let mut ps = ParticleSeries::create(&dir.join("particles.csv"))?;
+            let mut ps = ParticleSeries::create(&partial(&pseries_path))?;
             ps.push(&row)?;
             Some(ps)
         }
@@ -478,7 +482,6 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         }
     };
     record(&sim, &mut traj_text);
-    let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
     let mut pvtk = match (vtk_every, &sim.particles) {
         (Some(_), Some(_)) => Some(ParticleVtkSeries::new(&dir).map_err(|e| io_err(&dir, e))?),
         _ => None,
@@ -497,6 +500,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
             ProgressStyle::with_template("{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} steps, ETA {eta}")
                 .expect("valid template"),
         );
+        b.set_position(sim.step);
         b
     } else {
         ProgressBar::hidden()
@@ -516,27 +520,52 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         tau: sim.params.tau,
         magic: sim.params.magic,
         cores: pipe.executor().cores().to_vec(),
+        restarted_from: opts.restart.as_ref().map(|c| c.path.display().to_string()),
+        restart_step: opts.restart.as_ref().map(|c| c.step),
         ..Default::default()
     };
     if let Some(p) = sim.particles.as_mut() {
-        let bodies = p.bodies(0);
+        let bodies = p.bodies(start_step);
         p.update_active(1, &bodies);
     }
     let tasks_per_step = pipe.tasks_per_step(&sim);
     let mut loop_time = 0.0;
     let mut failure = None;
+    let ck_every = cfg.run.checkpoint_every;
     let next_event = |s: u64| {
         let mut n = steps;
         n = n.min((s / series_every + 1) * series_every);
         if let Some(e) = vtk_every {
             n = n.min((s / e + 1) * e);
         }
+        if let Some(e) = ck_every {
+            n = n.min((s / e + 1) * e);
+        }
         n.min(s + 256)
     };
+    // The run loop advances one graph run (processes.steps_per_graph steps) at a time, so that a signal is
+    // answered at the end of the graph run under way (the graph runs are the same as with longer chunks).
+    let chunk = cfg.processes.steps_per_graph.max(1) as u64;
+    let mut last_checkpoint: Option<(u64, PathBuf)> = None;
+    let (mut ck_count, mut ck_seconds, mut ck_bytes) = (0u64, 0.0, 0u64);
+    let mut last_checkpoint_time = Instant::now();
+    let save = |sim: &Simulation<T>, pipe: &Pipeline<T>| -> Result<checkpoint::Written> {
+        let input = CheckpointInput {
+            config: &eff_text,
+            scene: scene.name,
+            balance: pipe.balancer.as_ref().map(|b| BalanceState::of(cfg, b)),
+        };
+        checkpoint::write(&ck_dir, sim, &input, cfg.run.checkpoints_kept)
+    };
+    let mut interrupted = None;
     while sim.step < steps {
+        if let Some(sig) = checkpoint::interrupted() {
+            interrupted = Some(sig);
+            break;
+        }
         let target = next_event(sim.step);
         let ts = Instant::now();
-        let todo = target - sim.step;
+        let todo = (target - sim.step).min(chunk);
         let r = pipe.advance(&mut sim, todo);
         loop_time += ts.elapsed().as_secs_f64();
         if let Err(e) = r {
@@ -556,29 +585,57 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
                 vtk_step(v, pvtk.as_mut(), &sim)?;
             }
         }
+        let due = ck_every.is_some_and(|n| s % n == 0)
+            || cfg
+                .run
+                .checkpoint_wall
+                .is_some_and(|w| last_checkpoint_time.elapsed().as_secs_f64() >= w);
+        if due {
+            let w = save(&sim, &pipe)?;
+            (ck_count, ck_seconds, ck_bytes) = (ck_count + 1, ck_seconds + w.seconds, w.bytes);
+            last_checkpoint = Some((s, w.path));
+            last_checkpoint_time = Instant::now();
+        }
         bar.set_position(s);
+    }
+    // Interrupted: a checkpoint of the step reached (unless one was just written).
+    if interrupted.is_some() && last_checkpoint.as_ref().is_none_or(|(s, _)| *s != sim.step) {
+        if !checkpointing {
+            std::fs::create_dir_all(&ck_dir).map_err(|e| io_err(&ck_dir, e))?;
+        }
+        let w = save(&sim, &pipe)?;
+        (ck_count, ck_seconds, ck_bytes) = (ck_count + 1, ck_seconds + w.seconds, w.bytes);
+        last_checkpoint = Some((sim.step, w.path));
     }
     bar.finish_and_clear();
     pipe.close_interval(&sim);
     series.finish()?;
+    std::fs::rename(partial(&series_path), &series_path).map_err(|e| io_err(&series_path, e))?;
     if let Some(ps) = pseries {
         ps.finish()?;
+        std::fs::rename(partial(&pseries_path), &pseries_path).map_err(|e| io_err(&pseries_path, e))?;
     }
     if sim.particles.as_ref().is_some_and(|p| p.bodies(sim.step).len() <= 16) {
-        let path = dir.join("trajectory.csv");
-        std::fs::write(&path, &traj_text).map_err(|e| io_err(&path, e))?;
+        write_atomic(&dir.join("trajectory.csv"), traj_text.as_bytes())?;
     }
     if let Some(path) = &opts.trace {
         pipe.write_trace(path).map_err(|e| io_err(path, e))?;
     }
     write_intervals(&dir.join("intervals.csv"), &pipe.intervals)?;
+    let done = sim.step - start_step;
     summary.steps = sim.step;
     summary.wall_seconds = loop_time;
     summary.mlups = if loop_time > 0.0 {
-        (sim.fluid_cells() as f64 * sim.step as f64) / loop_time / 1e6
+        (sim.fluid_cells() as f64 * done as f64) / loop_time / 1e6
     } else {
         0.0
     };
+    summary.checkpoint = last_checkpoint.as_ref().map(|(_, p)| p.display().to_string());
+    if ck_count > 0 {
+        summary.checkpoints_written = Some(ck_count);
+        summary.checkpoint_seconds = Some(ck_seconds);
+        summary.checkpoint_bytes = Some(ck_bytes);
+    }
     let t = &pipe.totals;
     let coupled = sim.blocks.iter().any(|b| b.particle_cells().is_some());
     summary.parts_seconds = PartsSeconds {
@@ -651,6 +708,17 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     if let Some(inst) = failure {
         let e = inst;
         summary.status = "unstable".to_string();
+        summary.error = Some(e.to_string());
+        write_summary(&dir, &summary)?;
+        return Err(e);
+    }
+    if let Some(signal) = interrupted {
+        let e = Error::Interrupted {
+            signal,
+            step: sim.step,
+            checkpoint: summary.checkpoint.clone(),
+        };
+        summary.status = "interrupted".to_string();
         summary.error = Some(e.to_string());
         write_summary(&dir, &summary)?;
         return Err(e);

@@ -224,6 +224,30 @@ fn runaway_particles_stop_the_run() {
     assert!(summary.contains("\"status\": \"unstable\""));
 }
 
+/// A gravity of 1e300 (found by the fuzzer): the travel bound of the active-block set overflowed the
+/// block range and the run hung; now the runaway is reported at sub-step 1 with exit 3.
+#[test]
+fn astronomical_gravity_is_a_runaway_not_a_hang() {
+    let out = tmp("gravity");
+    let (code, err) = run(
+        &configs().join("calibration.toml"),
+        &[
+            "--set",
+            "particles.gravity=[-0.0017,-1e300,-0.0099]",
+            "--steps",
+            "2",
+            "--processes",
+            "3",
+        ],
+        &out,
+    );
+    assert_eq!(code, 3, "{err}");
+    assert!(
+        err.contains("sub-step 1 ") && err.trim_end().lines().count() == 1,
+        "{err}"
+    );
+}
+
 /// A malformed, incomplete or mismatched coefficients file stops `run` with one line naming the file
 /// and the key.
 #[test]

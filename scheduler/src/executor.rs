@@ -969,10 +969,6 @@ mod tests {
     use super::*;
     use std::sync::atomic::AtomicU64;
 
-    fn spec(owner: u32) -> TaskSpec {
-        TaskSpec::for_owner(owner)
-    }
-
     /// Runs `graph` and checks: every task exactly once, edges respected (sequence numbers), owner process
     /// respected under process stealing, records consistent.
     fn check(pool: &Executor, graph: &TaskGraph, edges: &[(TaskId, TaskId)]) {

@@ -108,6 +108,16 @@ impl Balancer {
             .distribute(&self.graph, &self.last, owners, self.processes)
     }
 
+    /// The corrector's prediction summed over the interval under way, per block (checkpoints store it).
+    pub fn predicted(&self) -> &[f64] {
+        &self.predicted
+    }
+
+    /// Restores the interval's prediction from a checkpoint (see [`Balancer::predicted`]).
+    pub fn set_predicted(&mut self, predicted: Vec<f64>) {
+        self.predicted = predicted;
+    }
+
     /// The block weights of the last balancing step (empty before the first).
     pub fn last_weights(&self) -> &[f64] {
         &self.last

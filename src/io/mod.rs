@@ -2,6 +2,7 @@
 
 pub mod plots;
 pub mod plots_balance;
+pub mod plots_sweep;
 pub mod series;
 pub mod summary;
 pub mod vtk;

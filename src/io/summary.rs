@@ -98,11 +98,31 @@ pub struct BalanceSummary {
 /// The whole summary.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Summary {
-    /// `"ok"`, `"unstable"` or `"error"`: only `"ok"` is a result.
+    /// `"ok"`, `"unstable"`, `"interrupted"` (SIGINT / SIGTERM: `steps` is the step reached, `checkpoint`
+    /// the state to continue from) or `"error"`: only `"ok"` is a result.
     pub status: String,
     /// The error message when status is not ok.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// The last checkpoint this run wrote (absent: none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoint: Option<String>,
+    /// Checkpoints this run wrote.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoints_written: Option<u64>,
+    /// Seconds spent writing them (encoding, write, fsync, rename).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoint_seconds: Option<f64>,
+    /// Bytes of the last checkpoint written.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoint_bytes: Option<u64>,
+    /// The checkpoint this run was restarted from (absent: a fresh start).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub restarted_from: Option<String>,
+    /// Step of that checkpoint: this run computed steps `restart_step + 1 ..= steps` (timings and the
+    /// balance record cover those; particle counters and migrated blocks are run totals).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub restart_step: Option<u64>,
     /// Scene kind.
     pub scene: String,
     /// One line on the physical set-up.

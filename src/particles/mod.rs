@@ -395,12 +395,18 @@ impl Particles {
             for ax in 0..3 {
                 let bs = d.block_size[ax] as f64;
                 let n = d.blocks[ax] as i64;
+                let (lf, hf) = (
+                    ((b.position[ax] - reach) / bs).floor(),
+                    ((b.position[ax] + reach) / bs).floor(),
+                );
+                // In f64 first: a runaway body (huge or non-finite reach) must not overflow the block range.
                 let (l, h) = (
-                    ((b.position[ax] - reach) / bs).floor() as i64,
-                    ((b.position[ax] + reach) / bs).floor() as i64,
+                    lf.clamp(-(n as f64), 2.0 * n as f64) as i64,
+                    hf.clamp(-(n as f64), 2.0 * n as f64) as i64,
                 );
                 if d.periodic[ax] {
-                    if h - l + 1 >= n {
+                    let span = hf - lf + 1.0;
+                    if span.is_nan() || span >= n as f64 {
                         (lo[ax], hi[ax]) = (0, n - 1);
                     } else {
                         (lo[ax], hi[ax]) = (l, h);

@@ -131,9 +131,10 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         None
     } else {
         let periodic = cfg.domain.periodic.unwrap_or([true; 3]);
-        let cells: [usize; 3] = std::array::from_fn(|a| {
-            cfg.domain.blocks.unwrap_or([1, 1, 1])[a] * cfg.domain.block_size.unwrap_or([16, 16, 16])[a]
-        });
+        let cells = super::extent_of(
+            cfg.domain.blocks.unwrap_or([1, 1, 1]),
+            cfg.domain.block_size.unwrap_or([16, 16, 16]),
+        )?;
         let mut planes = super::wall_planes(cells, periodic);
         for (i, p) in geometry.planes.iter().enumerate() {
             planes.push(RigidPlane {

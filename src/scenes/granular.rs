@@ -193,6 +193,13 @@ pub(super) fn build_granular_box(s: &GranularBoxConfig, cfg: &Config) -> Result<
             s.size
         ));
     }
+    if s.count > super::MAX_BODIES {
+        return config_err(format!(
+            "scene.count = {}: must be at most {}",
+            s.count,
+            super::MAX_BODIES
+        ));
+    }
     let d = s.diameter;
     let spacing = 1.15 * d;
     let per = |a: usize| ((s.size[a] as f64 - 0.2 * d) / spacing).floor().max(0.0) as usize;

@@ -210,9 +210,45 @@ pub fn build(cfg: &Config) -> Result<Scene> {
     }
 }
 
+/// Most bodies a scene may place (a bound checked before the bodies are allocated; the memory estimate of
+/// the run comes later).
+pub const MAX_BODIES: usize = 1_000_000;
+
+/// Largest domain extent along one axis, in cells (far beyond any machine's memory in 3D; keeps every
+/// cell and block count, and their products, inside `usize`).
+pub const MAX_CELLS_PER_AXIS: usize = 1 << 20;
+
+/// Checks a scene's domain extent before anything is sized from it: every axis between 1 and
+/// [`MAX_CELLS_PER_AXIS`] cells. `what` names the keys that set the extent.
+pub fn check_extent(cells: [usize; 3], what: &str) -> Result<()> {
+    if cells.iter().any(|&c| c == 0 || c > MAX_CELLS_PER_AXIS) {
+        return config_err(format!(
+            "{what} give a domain of {cells:?} cells: every axis must have between 1 and {MAX_CELLS_PER_AXIS} cells; \
+             lower them"
+        ));
+    }
+    Ok(())
+}
+
+/// The extent `blocks × block_size` of a domain given by both keys, checked for overflow and size.
+pub fn extent_of(blocks: [usize; 3], block_size: [usize; 3]) -> Result<[usize; 3]> {
+    let mut cells = [0usize; 3];
+    for a in 0..3 {
+        cells[a] = blocks[a].saturating_mul(block_size[a]);
+    }
+    check_extent(
+        cells,
+        &format!("domain.blocks = {blocks:?} x domain.block_size = {block_size:?}"),
+    )?;
+    Ok(cells)
+}
+
 /// Resolves the block decomposition of a scene from the `[domain]` keys: blocks, block size or both
 /// (they must multiply to the scene's extent), periodicity fixed by the scene.
 pub fn domain_for(d: &DomainConfig, scene: &Scene) -> Result<DomainSpec> {
+    if let Some(cells) = scene.cells {
+        check_extent(cells, &format!("the scene keys of {}", scene.name))?;
+    }
     if let Some(p) = d.periodic {
         if p != scene.periodic && scene.cells.is_some() {
             return config_err(format!(
@@ -224,6 +260,7 @@ pub fn domain_for(d: &DomainConfig, scene: &Scene) -> Result<DomainSpec> {
     let Some(cells) = scene.cells else {
         let blocks = d.blocks.unwrap_or([1, 1, 1]);
         let block_size = d.block_size.unwrap_or([16, 16, 16]);
+        extent_of(blocks, block_size)?;
         return Ok(DomainSpec {
             blocks,
             block_size,
@@ -232,7 +269,7 @@ pub fn domain_for(d: &DomainConfig, scene: &Scene) -> Result<DomainSpec> {
     };
     let (blocks, block_size) = match (d.blocks, d.block_size) {
         (Some(b), Some(s)) => {
-            let have = [b[0] * s[0], b[1] * s[1], b[2] * s[2]];
+            let have: [usize; 3] = std::array::from_fn(|a| b[a].saturating_mul(s[a]));
             if have != cells {
                 return config_err(format!(
                     "domain.blocks {b:?} x domain.block_size {s:?} = {have:?} cells, but scene {} needs {cells:?} \

@@ -355,7 +355,7 @@ pub(super) fn build_hopper(s: &HopperConfig, cfg: &Config) -> Result<Scene> {
     )?;
     let blocks = cfg.domain.blocks.unwrap_or([6, 6, 8]);
     let bs = cfg.domain.block_size.unwrap_or([16, 16, 16]);
-    let cells: [usize; 3] = std::array::from_fn(|a| blocks[a] * bs[a]);
+    let cells = super::extent_of(blocks, bs)?;
     let (lx, ly, lz) = (cells[0] as f64, cells[1] as f64, cells[2] as f64);
     let tau = cfg.fluid.tau.unwrap_or(0.52);
     let nu = (tau - 0.5) / 3.0;
@@ -390,8 +390,15 @@ pub(super) fn build_hopper(s: &HopperConfig, cfg: &Config) -> Result<Scene> {
     if layer == 0 {
         return crate::error::config_err(format!("scene.diameter = {d}: the box {cells:?} holds no sphere"));
     }
+    if s.count > super::MAX_BODIES {
+        return crate::error::config_err(format!(
+            "scene.count = {}: must be at most {}",
+            s.count,
+            super::MAX_BODIES
+        ));
+    }
     let layers = s.count.div_ceil(layer);
-    let bottom = lz - 0.6 * d - (layers - 1) as f64 * spacing;
+    let bottom = lz - 0.6 * d - layers.saturating_sub(1) as f64 * spacing;
     if bottom < hf + d {
         return crate::error::config_err(format!(
             "scene.count = {}: {layers} layers of {layer} spheres reach below the funnel top; lower the count or \
@@ -538,7 +545,7 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
     check("duration", s.duration, s.duration > 0.0, "must be positive")?;
     let blocks = cfg.domain.blocks.unwrap_or([4, 4, 5]);
     let bs = cfg.domain.block_size.unwrap_or([16, 16, 16]);
-    let cells: [usize; 3] = std::array::from_fn(|a| blocks[a] * bs[a]);
+    let cells = super::extent_of(blocks, bs)?;
     let (lx, ly) = (cells[0] as f64, cells[1] as f64);
     let lz = cells[2] as f64 - s.top_offset * bs[2] as f64;
     let d = s.diameter;
@@ -550,13 +557,37 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
     let u_s = s.galileo * nu / d;
     let g = u_s * u_s / ((s.density_ratio - 1.0) * d);
     let vol = std::f64::consts::PI / 6.0 * d.powi(3);
-    let count = (s.solid_fraction * lx * ly * lz / vol).round() as usize;
+    let wanted = (s.solid_fraction * lx * ly * lz / vol).round().max(0.0);
+    if wanted > super::MAX_BODIES as f64 {
+        return crate::error::config_err(format!(
+            "scene.solid_fraction = {}: {wanted} spheres of D = {d} in {cells:?} cells, more than {}; lower it, \
+             raise scene.diameter or use fewer blocks",
+            s.solid_fraction,
+            super::MAX_BODIES
+        ));
+    }
+    let count = wanted as usize;
     // Random sequential addition: uniform candidates, rejected when they overlap a placed sphere or a wall.
+    // Placed spheres are binned in a grid of cells at least the clearance wide (periodic in x and y), so a
+    // candidate is checked against the spheres of the 27 cells around it only.
     let r = d / 2.0;
+    let clearance = d + 0.05;
+    let gx = ((lx / clearance).floor() as i64).max(1);
+    let gy = ((ly / clearance).floor() as i64).max(1);
+    let cell_of = |p: DVec3| -> (i64, i64, i64) {
+        (
+            ((p.x / lx * gx as f64).floor() as i64).rem_euclid(gx),
+            ((p.y / ly * gy as f64).floor() as i64).rem_euclid(gy),
+            (p.z / clearance).floor() as i64,
+        )
+    };
+    let mut grid: std::collections::HashMap<(i64, i64, i64), Vec<usize>> = std::collections::HashMap::new();
     let mut bodies: Vec<Body> = Vec::with_capacity(count);
     let mut k = 0u64;
+    // Candidates rejected in a row: past 100 000 the box is jammed (thin slab, high fraction); stop early.
+    let mut misses = 0u64;
     while bodies.len() < count {
-        if k > 2000 * count as u64 + 10_000 {
+        if k > 2000 * count as u64 + 10_000 || misses > 100_000 {
             return crate::error::config_err(format!(
                 "scene.solid_fraction = {}: could not place {count} spheres at random; lower it",
                 s.solid_fraction
@@ -565,13 +596,28 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
         let u = |c: u64| super::seeded_unit(s.seed, 4 * k + c);
         let p = DVec3::new(u(0) * lx, u(1) * ly, r + 0.05 + u(2) * (lz - d - 0.1));
         k += 1;
-        let clear = bodies.iter().all(|b| {
-            let mut dv = b.position - p;
+        let (cx, cy, cz) = cell_of(p);
+        let mut near: Vec<(i64, i64, i64)> = Vec::with_capacity(27);
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let c = ((cx + dx).rem_euclid(gx), (cy + dy).rem_euclid(gy), cz + dz);
+                    if !near.contains(&c) {
+                        near.push(c);
+                    }
+                }
+            }
+        }
+        let clear = near.iter().filter_map(|c| grid.get(c)).flatten().all(|&i| {
+            let mut dv = bodies[i].position - p;
             dv.x -= lx * (dv.x / lx).round();
             dv.y -= ly * (dv.y / ly).round();
-            dv.length() > d + 0.05
+            dv.length() > clearance
         });
+        misses += 1;
         if clear {
+            misses = 0;
+            grid.entry((cx, cy, cz)).or_default().push(bodies.len());
             bodies.push(Body::sphere(bodies.len() as u64, p, r, s.density_ratio));
         }
     }

@@ -6,7 +6,8 @@
 //! never moves a block; the counterfactual strategies are assigned to `P` processes of `T` threads each,
 //! whatever the machine. `none` is the paper's baseline (static Hilbert split by fluid cells), `steal-global`
 //! the same assignment with any idle thread taking any ready task, and every other strategy starts from its
-//! own split by `--weights` and rebalances every `balance.interval` steps.
+//! own split by `--weights` (or the `@weights` suffix of its name, e.g. `hilbert@estimator`) and rebalances
+//! every `balance.interval` steps.
 
 use super::report::{self, Row};
 use super::{Counterfactual, Strategy};
@@ -101,6 +102,20 @@ pub struct StudyReport {
     pub live: Vec<LiveRow>,
 }
 
+/// Strategy and optional block weights of a name `strategy[@weights]` (e.g. `hilbert@estimator`).
+fn parse_name(name: &str) -> Option<(config::Strategy, Option<Weights>)> {
+    let (base, weights) = match name.split_once('@') {
+        Some((b, w)) => (b, Some(parse_weights(w)?)),
+        None => (name, None),
+    };
+    Some((parse_strategy(base)?, weights))
+}
+
+/// `cells`, `estimator`, `measured` or `corrected`.
+pub fn parse_weights(w: &str) -> Option<Weights> {
+    serde_json::from_value(serde_json::Value::String(w.to_string())).ok()
+}
+
 fn parse_strategy(name: &str) -> Option<config::Strategy> {
     Some(match name {
         "none" | "steal-global" => config::Strategy::None,
@@ -127,9 +142,10 @@ pub fn study(opts: &StudyOptions) -> Result<StudyReport> {
         )));
     }
     for s in &opts.strategies {
-        if parse_strategy(s).is_none() {
+        if parse_name(s).is_none() {
             return Err(Error::Config(format!(
-                "--strategies: unknown strategy {s:?}; known: {}",
+                "--strategies: unknown strategy {s:?}; known: {} (optionally with @cells, @estimator, @measured \
+                 or @corrected for the block weights)",
                 STRATEGIES.join(", ")
             )));
         }
@@ -151,12 +167,16 @@ fn strategy_config(cfg: &Config, name: &str, processes: usize, threads: usize) -
     let mut c = cfg.clone();
     c.processes.count = processes;
     c.processes.threads_per_process = threads;
-    c.balance.strategy = parse_strategy(name).expect("checked");
+    let (strategy, weights) = parse_name(name).expect("checked");
+    c.balance.strategy = strategy;
+    if let Some(w) = weights {
+        c.balance.weights = w;
+    }
     if c.balance.strategy == config::Strategy::None {
         // The paper's baseline: the static Hilbert split by fluid cells.
         c.balance.weights = Weights::Cells;
     }
-    if name == "steal-global" {
+    if name.starts_with("steal-global") {
         c.processes.steal = StealConfig::Global;
     }
     c
@@ -179,7 +199,7 @@ fn counterfactual<T: Real>(
         strategies.push(Strategy::new(
             name,
             balancer,
-            name == "steal-global",
+            name.starts_with("steal-global"),
             owners,
             &weights,
             processes,
@@ -336,8 +356,8 @@ fn write(dir: &Path, r: &StudyReport) -> Result<()> {
         std::fs::write(&p, text).map_err(|e| io_err(&p, e))
     };
     let mut md = format!(
-        "Table 3: {} on {} processes × {} threads, {} steps, interval {}, weights {}; modeled from one recording \
-         (α = {:.1} µs, β = {:.1} GB/s).\n\n",
+        "Table 3: {} on {} processes × {} threads, {} steps, interval {}, weights {} (unless a name carries \
+         @weights; `none` and `steal-global`: cells); modeled from one recording (α = {:.1} µs, β = {:.1} GB/s).\n\n",
         r.scene,
         r.processes,
         r.threads_per_process,

@@ -1,0 +1,183 @@
+//! PNG figure of `blockflow sweep` (issue #9 point 1): error against run time on log–log axes, one line
+//! per variant, the fitted order of convergence in the legend. Same conventions as [`super::plots`].
+
+use super::plots::{bold, canvas, colour, font, render, GRID};
+use crate::error::{Error, Result};
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+use std::path::Path;
+
+/// Size of the figure in pixels.
+pub const SWEEP_FIGURE_SIZE: (u32, u32) = (1400, 850);
+
+/// One line: its legend label and (run seconds, error) points.
+pub type SweepLine = (String, Vec<(f64, f64)>);
+
+/// Error against run time, log–log. Points that are not positive and finite are skipped; an error when
+/// none is left.
+pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]) -> Result<()> {
+    let ok = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite() && p.0 > 0.0 && p.1 > 0.0;
+    let lines: Vec<SweepLine> = lines
+        .iter()
+        .map(|(n, pts)| (n.clone(), pts.iter().filter(ok).copied().collect()))
+        .collect();
+    let xs: Vec<f64> = lines.iter().flat_map(|l| l.1.iter().map(|p| p.0)).collect();
+    let ys: Vec<f64> = lines.iter().flat_map(|l| l.1.iter().map(|p| p.1)).collect();
+    if xs.is_empty() {
+        return Err(Error::Config(format!("{}: {title}: no data to plot", path.display())));
+    }
+    let span = |v: &[f64]| {
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(0.0, f64::max);
+        (lo / 1.5, hi * 1.5)
+    };
+    let (x0, x1) = span(&xs);
+    let (y0, y1) = span(&ys);
+    render(path, || {
+        let (base, root) = canvas(path, SWEEP_FIGURE_SIZE, title)?;
+        let (plot, legend) = root.split_horizontally(SWEEP_FIGURE_SIZE.0 - 330);
+        let mut c = ChartBuilder::on(&plot)
+            .margin(12)
+            .margin_right(30)
+            .x_label_area_size(60)
+            .y_label_area_size(110)
+            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())?;
+        c.configure_mesh()
+            .x_desc("run time (s)")
+            .y_desc(y_desc)
+            .label_style(font(17.0))
+            .axis_desc_style(font(19.0))
+            .x_label_formatter(&|v: &f64| format!("{v:.2e}"))
+            .y_label_formatter(&|v: &f64| format!("{v:.1e}"))
+            .light_line_style(WHITE)
+            .bold_line_style(GRID)
+            .draw()?;
+        for (i, (_, pts)) in lines.iter().enumerate() {
+            let col = colour(i);
+            c.draw_series(LineSeries::new(pts.iter().copied(), col.stroke_width(2)))?;
+            c.draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled())))?;
+        }
+        legend.draw(&Text::new("variant", (12, 60), bold(18.0)))?;
+        for (i, (name, _)) in lines.iter().enumerate() {
+            let y = 100 + 32 * i as i32;
+            legend.draw(&PathElement::new(vec![(12, y), (52, y)], colour(i).stroke_width(4)))?;
+            let label = font(16.0).pos(Pos::new(HPos::Left, VPos::Center));
+            legend.draw(&Text::new(name.clone(), (62, y), label))?;
+        }
+        base.present()?;
+        Ok(())
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_a_png_and_refuses_empty_input() {
+        let dir = std::env::temp_dir().join(format!("blockflow-sweep-fig-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let p = dir.join("s.png");
+        let lines = vec![("f64 (order 2.0)".to_string(), vec![(0.1, 1e-3), (0.8, 2.5e-4)])];
+        error_vs_time(&p, "t", "l2 error", &lines).unwrap();
+        assert_eq!(&std::fs::read(&p).unwrap()[1..4], b"PNG");
+        let none = vec![("x".to_string(), vec![(0.1, 0.0)])];
+        assert!(error_vs_time(&dir.join("e.png"), "t", "e", &none).is_err());
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
+
+/// Outcome of one run of a stability map.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Outcome {
+    /// Ran to the end within the error bound.
+    Stable,
+    /// Ran to the end with an error beyond the bound.
+    Inaccurate,
+    /// Stopped by the detector at this step (None: step unknown).
+    Unstable(Option<u64>),
+}
+
+/// Size of the stability map in pixels.
+pub const MAP_SIZE: (u32, u32) = (1400, 900);
+
+/// Stability map: one cell per (x value, y value), green stable, amber inaccurate, red unstable with the
+/// step written in it. `cells[j][i]` is the outcome at `xs[i]`, `ys[j]`.
+pub fn stability_map(
+    path: &Path,
+    title: &str,
+    (x_key, xs): (&str, &[String]),
+    (y_key, ys): (&str, &[String]),
+    cells: &[Vec<Outcome>],
+) -> Result<()> {
+    if xs.is_empty() || ys.is_empty() {
+        return Err(Error::Config(format!("{}: {title}: no data to plot", path.display())));
+    }
+    let (nx, ny) = (xs.len() as i32, ys.len() as i32);
+    render(path, || {
+        let (base, root) = canvas(path, MAP_SIZE, title)?;
+        let (plot, legend) = root.split_horizontally(MAP_SIZE.0 - 260);
+        let mut c = ChartBuilder::on(&plot)
+            .margin(12)
+            .x_label_area_size(70)
+            .y_label_area_size(140)
+            .build_cartesian_2d((0..nx).into_segmented(), (0..ny).into_segmented())?;
+        let label = |list: &[String], v: &SegmentValue<i32>| match v {
+            SegmentValue::CenterOf(i) => list.get(*i as usize).cloned().unwrap_or_default(),
+            _ => String::new(),
+        };
+        let xl = |v: &SegmentValue<i32>| label(xs, v);
+        let yl = |v: &SegmentValue<i32>| label(ys, v);
+        c.configure_mesh()
+            .disable_mesh()
+            .x_desc(x_key)
+            .y_desc(y_key)
+            .label_style(font(15.0))
+            .axis_desc_style(font(19.0))
+            .x_labels(xs.len())
+            .y_labels(ys.len())
+            .x_label_formatter(&xl)
+            .y_label_formatter(&yl)
+            .draw()?;
+        let green = RGBColor(0, 158, 115);
+        let amber = RGBColor(230, 159, 0);
+        let red = RGBColor(213, 94, 0);
+        for (j, row) in cells.iter().enumerate() {
+            for (i, o) in row.iter().enumerate() {
+                let col = match o {
+                    Outcome::Stable => green,
+                    Outcome::Inaccurate => amber,
+                    Outcome::Unstable(_) => red,
+                };
+                let (i, j) = (i as i32, j as i32);
+                let (a, b) = (
+                    (SegmentValue::Exact(i), SegmentValue::Exact(j)),
+                    (SegmentValue::Exact(i + 1), SegmentValue::Exact(j + 1)),
+                );
+                c.draw_series(std::iter::once(Rectangle::new([a.clone(), b.clone()], col.filled())))?;
+                c.draw_series(std::iter::once(Rectangle::new(
+                    [a.clone(), b.clone()],
+                    WHITE.stroke_width(2),
+                )))?;
+                if let Outcome::Unstable(Some(s)) = o {
+                    let (px, py) = c.backend_coord(&a);
+                    let (qx, qy) = c.backend_coord(&b);
+                    let style = font(14.0).color(&WHITE).pos(Pos::new(HPos::Center, VPos::Center));
+                    plot.draw(&Text::new(format!("{s}"), ((px + qx) / 2, (py + qy) / 2), style))?;
+                }
+            }
+        }
+        legend.draw(&Text::new("outcome", (12, 60), bold(18.0)))?;
+        for (k, (name, col)) in [("stable", green), ("inaccurate", amber), ("unstable (step)", red)]
+            .into_iter()
+            .enumerate()
+        {
+            let y = 100 + 34 * k as i32;
+            legend.draw(&Rectangle::new([(12, y - 10), (40, y + 10)], col.filled()))?;
+            let label = font(17.0).pos(Pos::new(HPos::Left, VPos::Center));
+            legend.draw(&Text::new(name, (50, y), label))?;
+        }
+        base.present()?;
+        Ok(())
+    })
+}

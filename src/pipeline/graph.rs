@@ -1,0 +1,211 @@
+//! Building the step graph of `k` consecutive steps: the fluid tasks (`send`, `comm`, `boundary`,
+//! `sweep`) and the particle tasks (`map`, `reconstruct`, `forces`, `rb`, `rb_sync`) with the edges the
+//! module docs of [`super`] list.
+
+use super::*;
+
+/// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
+/// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
+/// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps. Edges as documented in
+/// [`crate::particles::tasks`] and [`crate::coupling::tasks`].
+pub(super) fn add_particle_tasks<T: Real>(
+    g: &mut GraphBuilder,
+    parts: &Particles,
+    blocks: &[Block<T>],
+    owners: &[u32],
+    k: usize,
+    fluid: &[Ids],
+    coupled: bool,
+) {
+    let nb = parts.blocks.len();
+    let s = parts.subcycles;
+    let active: Vec<usize> = (0..nb).filter(|&b| parts.active[b]).collect();
+    let spec = |b: usize, part: u8, payload: u32| TaskSpec {
+        owner: owners[b],
+        part,
+        block: b as u32,
+        payload,
+    };
+    // Receivers of each block's interior layers inside the same process (their comm reads it directly).
+    let mut local_receivers: Vec<Vec<usize>> = vec![Vec::new(); nb];
+    for blk in blocks {
+        for r in &blk.recv {
+            if owners[r.from] == owners[blk.id] && r.from != blk.id {
+                local_receivers[r.from].push(blk.id);
+            }
+        }
+    }
+    let mut sync: Vec<Option<TaskId>> = vec![None; nb];
+    for kk in 0..k {
+        let mut forces: Vec<Option<TaskId>> = vec![None; nb];
+        if coupled {
+            let mut maps: Vec<Option<TaskId>> = vec![None; nb];
+            for &b in active.iter().filter(|&&b| blocks[b].fluid_cells > 0) {
+                let m = g.add(spec(b, PART_MAP, payload(kk, KIND_MAP)));
+                let r = g.add(spec(b, PART_RECON, payload(kk, KIND_RECON)));
+                g.edge(m, r);
+                for &n in &parts.blocks[b].near {
+                    if let Some(sp) = sync[n] {
+                        g.edge(sp, m);
+                    }
+                }
+                if kk > 0 {
+                    if let Some(sw) = fluid[(kk - 1) * nb + b].sweep {
+                        g.edge(sw, m);
+                    }
+                }
+                let f = &fluid[kk * nb + b];
+                if let Some(first) = f.comm.or(f.boundary).or(f.sweep) {
+                    g.edge(r, first);
+                }
+                if let Some(sd) = f.send {
+                    g.edge(r, sd);
+                }
+                for &n in &local_receivers[b] {
+                    if let Some(c) = fluid[kk * nb + n].comm {
+                        g.edge(r, c);
+                    }
+                }
+                maps[b] = Some(m);
+            }
+            for &b in &active {
+                let fo = g.add(spec(b, PART_RB, payload(kk, KIND_FORCES)));
+                for &n in &parts.blocks[b].near {
+                    if let Some(x) = fluid[kk * nb + n].boundary.or(maps[n]) {
+                        g.edge(x, fo);
+                    }
+                }
+                if let Some(sp) = sync[b] {
+                    g.edge(sp, fo);
+                }
+                forces[b] = Some(fo);
+            }
+        }
+        for sub in 0..s {
+            let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
+            let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
+            for &b in &active {
+                new_rb[b] = Some(g.add(spec(b, PART_RB, payload_sub(kk, sub, KIND_RB))));
+            }
+            for &b in &active {
+                new_sync[b] = Some(g.add(spec(b, PART_RB, payload_sub(kk, sub, KIND_RB_SYNC))));
+            }
+            for &b in &active {
+                let me_rb = new_rb[b].expect("active");
+                let me_sync = new_sync[b].expect("active");
+                for &n in &parts.blocks[b].near {
+                    let before = if sub == 0 && coupled { forces[n] } else { sync[n] };
+                    if let Some(prev) = before {
+                        g.edge(prev, me_rb);
+                    }
+                    if let Some(r) = new_rb[n] {
+                        g.edge(r, me_sync);
+                    }
+                }
+            }
+            sync = new_sync;
+        }
+    }
+}
+
+/// Task ids of one block and step.
+#[derive(Clone, Copy, Default)]
+pub(super) struct Ids {
+    pub(super) send: Option<TaskId>,
+    pub(super) comm: Option<TaskId>,
+    pub(super) boundary: Option<TaskId>,
+    pub(super) sweep: Option<TaskId>,
+}
+
+/// Adds the fluid tasks of `k` consecutive steps (see the module docs for tasks and edges).
+pub(super) fn add_fluid_tasks<T: Real>(
+    g: &mut GraphBuilder,
+    blocks: &[Block<T>],
+    owners: &[u32],
+    outgoing: &[Vec<Outgoing>],
+    k: usize,
+    force_boundary: &[bool],
+) -> Vec<Ids> {
+    let nb = blocks.len();
+    let mut ids = vec![Ids::default(); nb * k];
+    // Within a step the send tasks get the lowest ids: a worker that finishes a task continues with its
+    // lowest-id ready successor, so a block's sweep is followed at once by the message another process
+    // is waiting for, and run roots are queued sends first.
+    for s in 0..k {
+        for b in blocks
+            .iter()
+            .filter(|b| b.fluid_cells > 0 && !outgoing[b.id].is_empty())
+        {
+            ids[s * nb + b.id].send = Some(g.add(TaskSpec {
+                owner: owners[b.id],
+                part: PART_EXCHANGE,
+                block: b.id as u32,
+                payload: payload(s, KIND_SEND),
+            }));
+        }
+        for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
+            let owner = owners[b.id];
+            let mk = |g: &mut GraphBuilder, part: u8, kind: u32| {
+                g.add(TaskSpec {
+                    owner,
+                    part,
+                    block: b.id as u32,
+                    payload: payload(s, kind),
+                })
+            };
+            let id = &mut ids[s * nb + b.id];
+            if !b.recv.is_empty() {
+                id.comm = Some(mk(g, PART_EXCHANGE, KIND_COMM));
+            }
+            if !b.links.is_empty() || force_boundary[b.id] {
+                id.boundary = Some(mk(g, PART_BOUNDARY, KIND_BOUNDARY));
+            }
+            id.sweep = Some(mk(g, PART_LBM, KIND_SWEEP));
+        }
+    }
+    let compute = |i: &Ids| i.boundary.or(i.sweep).expect("fluid block has a sweep");
+    let first = |i: &Ids| i.comm.or(i.boundary).or(i.sweep).expect("fluid block has a sweep");
+    for s in 0..k {
+        for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
+            let me = ids[s * nb + b.id];
+            let sweep = me.sweep.expect("sweep");
+            // own chain
+            if let Some(c) = me.comm {
+                g.edge(c, compute(&me));
+            }
+            if let Some(bd) = me.boundary {
+                g.edge(bd, sweep);
+            }
+            if let Some(sd) = me.send {
+                g.edge(sd, compute(&me));
+            }
+            if s + 1 < k {
+                let next = ids[(s + 1) * nb + b.id];
+                g.edge(sweep, first(&next));
+                if let Some(sd) = next.send {
+                    g.edge(sweep, sd);
+                }
+            }
+            // neighbours
+            if let Some(c) = me.comm {
+                for r in &b.recv {
+                    let n = ids[s * nb + r.from];
+                    if owners[r.from] == owners[b.id] {
+                        if r.from != b.id {
+                            if s > 0 {
+                                g.edge(ids[(s - 1) * nb + r.from].sweep.expect("sweep"), c);
+                            }
+                            g.edge(c, compute(&n));
+                        }
+                    } else {
+                        g.edge(n.send.expect("remote sender has a send task"), c);
+                        if s + 1 < k {
+                            g.edge(c, ids[(s + 1) * nb + r.from].send.expect("send"));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    ids
+}

@@ -1,0 +1,400 @@
+//! `blockflow sweep SCENE --vary KEY=V1,V2,... [--vary ...] [--set ...] [--repeat N] [--steps N]
+//! [--error OBSERVABLE] [--out DIR]` (issue #9 point 1): runs a scene over every combination of the varied
+//! keys and writes `sweep.csv` (the varied values, status, steps, wall and core seconds, MLUPS and every
+//! observable) and `sweep.png` (error against run time, log–log, one line per variant with the fitted
+//! order of convergence in the legend).
+//!
+//! The first `--vary` key drives convergence (resolution above all): a variant is one combination of the
+//! other keys, and its order is the least-squares slope of −log(error) against log(first key). With
+//! `--repeat N` every run is repeated and the fastest wall time is kept (the results are bitwise the same).
+//! An unstable run is a row with status `unstable`, not the end of the sweep; a bad key or value stops it.
+
+use crate::config;
+use crate::error::{io_err, Error, Result};
+use crate::runner::{self, RunOptions};
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+/// Options of `blockflow sweep`.
+#[derive(Clone, Debug, Default)]
+pub struct SweepOptions {
+    /// Scene file.
+    pub scene: PathBuf,
+    /// Varied keys and their values (TOML literals), the first one driving convergence.
+    pub vary: Vec<(String, Vec<String>)>,
+    /// Fixed overrides.
+    pub sets: Vec<String>,
+    /// Runs per combination (the fastest is kept).
+    pub repeat: usize,
+    /// Steps (default: the scene's).
+    pub steps: Option<u64>,
+    /// Observable plotted as the error (default: the first whose name contains "error").
+    pub error: Option<String>,
+    /// Output folder.
+    pub out: PathBuf,
+}
+
+/// One combination.
+#[derive(Clone, Debug)]
+pub struct SweepRow {
+    /// The varied values, in `--vary` order.
+    pub values: Vec<String>,
+    /// `ok` or `unstable`.
+    pub status: String,
+    /// Steps run.
+    pub steps: u64,
+    /// Fastest wall seconds of the repeats.
+    pub wall_seconds: f64,
+    /// CPU seconds of every task of that run (all threads).
+    pub core_seconds: f64,
+    /// Million fluid-cell updates per second.
+    pub mlups: f64,
+    /// The scene's observables.
+    pub observables: BTreeMap<String, f64>,
+    /// The step at which an unstable run was stopped.
+    pub failed_step: Option<u64>,
+    /// The instability message (step, block, cell).
+    pub message: Option<String>,
+}
+
+/// The result of a sweep.
+#[derive(Clone, Debug)]
+pub struct SweepReport {
+    /// Varied keys.
+    pub keys: Vec<String>,
+    /// One row per combination.
+    pub rows: Vec<SweepRow>,
+    /// The error observable.
+    pub error: Option<String>,
+    /// Fitted order of convergence per variant label.
+    pub orders: Vec<(String, f64)>,
+    /// Indices of the rows on the Pareto front (cheapest run for each error level).
+    pub pareto: Vec<usize>,
+}
+
+/// Parses `KEY=V1,V2,...`; commas inside brackets or quotes belong to a value (`domain.blocks=[2,2,1],[4,4,2]`).
+pub fn parse_vary(s: &str) -> Result<(String, Vec<String>)> {
+    let (k, v) = s
+        .split_once('=')
+        .ok_or_else(|| Error::Config(format!("--vary {s}: expected KEY=V1,V2,...")))?;
+    let mut values = Vec::new();
+    let (mut depth, mut quoted, mut cur) = (0i32, false, String::new());
+    for ch in v.chars() {
+        match ch {
+            '"' => quoted = !quoted,
+            '[' if !quoted => depth += 1,
+            ']' if !quoted => depth -= 1,
+            ',' if depth == 0 && !quoted => {
+                values.push(std::mem::take(&mut cur));
+                continue;
+            }
+            _ => {}
+        }
+        cur.push(ch);
+    }
+    values.push(cur);
+    let values: Vec<String> = values.into_iter().map(|x| x.trim().to_string()).collect();
+    if k.trim().is_empty() || values.iter().any(|x| x.is_empty()) {
+        return Err(Error::Config(format!(
+            "--vary {s}: expected KEY=V1,V2,... with no empty value"
+        )));
+    }
+    Ok((k.trim().to_string(), values))
+}
+
+/// Least-squares slope of log y against log x over the positive finite points (None below two points or
+/// for a degenerate x).
+pub fn log_slope(points: &[(f64, f64)]) -> Option<f64> {
+    let p: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && *x > 0.0 && *y > 0.0)
+        .map(|(x, y)| (x.ln(), y.ln()))
+        .collect();
+    if p.len() < 2 {
+        return None;
+    }
+    let n = p.len() as f64;
+    let (mx, my) = (
+        p.iter().map(|q| q.0).sum::<f64>() / n,
+        p.iter().map(|q| q.1).sum::<f64>() / n,
+    );
+    let sxx: f64 = p.iter().map(|q| (q.0 - mx).powi(2)).sum();
+    let sxy: f64 = p.iter().map(|q| (q.0 - mx) * (q.1 - my)).sum();
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+/// Rows on the Pareto front of (wall seconds, error): sorted by time, each strictly more accurate than
+/// every faster one.
+pub fn pareto_front(points: &[(f64, f64)]) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..points.len())
+        .filter(|&i| points[i].0.is_finite() && points[i].1.is_finite())
+        .collect();
+    idx.sort_by(|&a, &b| {
+        points[a]
+            .0
+            .total_cmp(&points[b].0)
+            .then(points[a].1.total_cmp(&points[b].1))
+    });
+    let mut best = f64::INFINITY;
+    idx.into_iter()
+        .filter(|&i| {
+            let keep = points[i].1 < best;
+            if keep {
+                best = points[i].1;
+            }
+            keep
+        })
+        .collect()
+}
+
+/// Runs the sweep and writes its CSV and figure.
+pub fn sweep(opts: &SweepOptions) -> Result<SweepReport> {
+    if opts.vary.is_empty() {
+        return Err(Error::Config("sweep: give at least one --vary KEY=V1,V2,...".into()));
+    }
+    std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
+    let mut combos: Vec<Vec<String>> = vec![Vec::new()];
+    for (_, values) in &opts.vary {
+        combos = combos
+            .into_iter()
+            .flat_map(|c| {
+                values.iter().map(move |v| {
+                    let mut c = c.clone();
+                    c.push(v.clone());
+                    c
+                })
+            })
+            .collect();
+    }
+    let keys: Vec<String> = opts.vary.iter().map(|(k, _)| k.clone()).collect();
+    let mut rows = Vec::new();
+    for (n, combo) in combos.iter().enumerate() {
+        let mut sets = opts.sets.clone();
+        sets.extend(keys.iter().zip(combo).map(|(k, v)| format!("{k}={v}")));
+        let cfg = config::load(&opts.scene, &sets)?;
+        let mut best: Option<SweepRow> = None;
+        for _ in 0..opts.repeat.max(1) {
+            let run = RunOptions {
+                steps: opts.steps,
+                out: Some(opts.out.join(format!("run-{n:03}"))),
+                scene_path: Some(opts.scene.clone()),
+                ..Default::default()
+            };
+            let row = match runner::run(&cfg, &run) {
+                Ok(s) => {
+                    let p = &s.parts_seconds;
+                    SweepRow {
+                        values: combo.clone(),
+                        status: s.status.clone(),
+                        steps: s.steps,
+                        wall_seconds: s.wall_seconds,
+                        core_seconds: p.lbm
+                            + p.boundary
+                            + p.exchange
+                            + p.rigid_body.unwrap_or(0.0)
+                            + p.map.unwrap_or(0.0)
+                            + p.reconstruct.unwrap_or(0.0),
+                        mlups: s.mlups,
+                        observables: s.observables.clone(),
+                        failed_step: None,
+                        message: None,
+                    }
+                }
+                Err(e @ (Error::Unstable(_) | Error::ParticlesUnstable(_))) => {
+                    eprintln!("sweep: {}: {e}", combo.join(" "));
+                    let failed_step = match &e {
+                        Error::Unstable(i) => Some(i.step),
+                        _ => None,
+                    };
+                    SweepRow {
+                        failed_step,
+                        message: Some(e.to_string()),
+                        values: combo.clone(),
+                        status: "unstable".into(),
+                        steps: 0,
+                        wall_seconds: f64::NAN,
+                        core_seconds: f64::NAN,
+                        mlups: f64::NAN,
+                        observables: BTreeMap::new(),
+                    }
+                }
+                Err(e) => return Err(e),
+            };
+            let faster = best.as_ref().is_none_or(|b| row.wall_seconds < b.wall_seconds);
+            if faster {
+                best = Some(row);
+            }
+        }
+        let row = best.expect("at least one repeat");
+        eprintln!(
+            "sweep: {} -> {} in {:.2} s",
+            keys.iter()
+                .zip(&row.values)
+                .map(|(k, v)| format!("{k}={v}"))
+                .collect::<Vec<_>>()
+                .join(" "),
+            row.status,
+            row.wall_seconds
+        );
+        rows.push(row);
+    }
+    let error = opts.error.clone().or_else(|| {
+        rows.iter()
+            .flat_map(|r| r.observables.keys())
+            .find(|k| k.contains("error"))
+            .cloned()
+    });
+    let err_of = |r: &SweepRow| {
+        error
+            .as_ref()
+            .and_then(|e| r.observables.get(e).copied())
+            .unwrap_or(f64::NAN)
+    };
+    // Variants: combinations of every key but the first.
+    let mut variants: BTreeMap<Vec<String>, Vec<usize>> = BTreeMap::new();
+    for (i, r) in rows.iter().enumerate() {
+        variants.entry(r.values[1..].to_vec()).or_default().push(i);
+    }
+    let mut orders = Vec::new();
+    let mut lines = Vec::new();
+    for (v, idx) in &variants {
+        let label = if v.is_empty() {
+            "all".to_string()
+        } else {
+            keys[1..]
+                .iter()
+                .zip(v)
+                .map(|(k, x)| format!("{k}={x}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        };
+        let conv: Vec<(f64, f64)> = idx
+            .iter()
+            .filter_map(|&i| rows[i].values[0].parse::<f64>().ok().map(|x| (x, err_of(&rows[i]))))
+            .collect();
+        let order = log_slope(&conv).map(|s| -s);
+        if let Some(o) = order {
+            orders.push((label.clone(), o));
+        }
+        let label = match order {
+            Some(o) => format!("{label} (order {o:.2})"),
+            None => label,
+        };
+        lines.push((
+            label,
+            idx.iter().map(|&i| (rows[i].wall_seconds, err_of(&rows[i]))).collect(),
+        ));
+    }
+    let pareto = pareto_front(&rows.iter().map(|r| (r.wall_seconds, err_of(r))).collect::<Vec<_>>());
+    write_csv(opts, &keys, &rows)?;
+    if let Some(e) = &error {
+        let title = format!("{}: {e} against run time", opts.scene.display());
+        if let Err(err) = crate::io::plots_sweep::error_vs_time(&opts.out.join("sweep.png"), &title, e, &lines) {
+            eprintln!("sweep: no figure: {err}");
+        }
+    }
+    Ok(SweepReport {
+        keys,
+        rows,
+        error,
+        orders,
+        pareto,
+    })
+}
+
+fn write_csv(opts: &SweepOptions, keys: &[String], rows: &[SweepRow]) -> Result<()> {
+    let obs: std::collections::BTreeSet<&String> = rows.iter().flat_map(|r| r.observables.keys()).collect();
+    let mut text = keys.join(",");
+    text += ",status,steps,wall_seconds,core_seconds,mlups";
+    for o in &obs {
+        text += &format!(",{o}");
+    }
+    text.push('\n');
+    for r in rows {
+        let quoted: Vec<String> = r
+            .values
+            .iter()
+            .map(|v| {
+                if v.contains(',') || v.contains('"') {
+                    format!("\"{}\"", v.replace('"', "\"\""))
+                } else {
+                    v.clone()
+                }
+            })
+            .collect();
+        text += &quoted.join(",");
+        text += &format!(
+            ",{},{},{:.6e},{:.6e},{:.4}",
+            r.status, r.steps, r.wall_seconds, r.core_seconds, r.mlups
+        );
+        for o in &obs {
+            match r.observables.get(*o) {
+                Some(v) => text += &format!(",{v:.9e}"),
+                None => text += ",",
+            }
+        }
+        text.push('\n');
+    }
+    let p = opts.out.join("sweep.csv");
+    std::fs::write(&p, text).map_err(|e| io_err(&p, e))
+}
+
+/// The sweep as a markdown table (the Pareto rows marked).
+pub fn to_markdown(r: &SweepReport) -> String {
+    let e = r.error.clone().unwrap_or_else(|| "error".into());
+    let mut s = format!(
+        "| {} | status | wall s | core s | MLUPS | {e} | Pareto |\n",
+        r.keys.join(" | ")
+    );
+    s += &format!("|{}---|---:|---:|---:|---:|---|\n", "---|".repeat(r.keys.len()));
+    for (i, row) in r.rows.iter().enumerate() {
+        let err = r
+            .error
+            .as_ref()
+            .and_then(|k| row.observables.get(k))
+            .copied()
+            .unwrap_or(f64::NAN);
+        s += &format!(
+            "| {} | {} | {:.3} | {:.3} | {:.1} | {:.3e} | {} |\n",
+            row.values.join(" | "),
+            row.status,
+            row.wall_seconds,
+            row.core_seconds,
+            row.mlups,
+            err,
+            if r.pareto.contains(&i) { "yes" } else { "" }
+        );
+    }
+    for (label, o) in &r.orders {
+        s += &format!("\norder of convergence, {label}: {o:.2}");
+    }
+    s.push('\n');
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vary_values_keep_brackets_and_quotes() {
+        let (k, v) = parse_vary("domain.blocks=[2,2,1],[4,4,2]").unwrap();
+        assert_eq!(k, "domain.blocks");
+        assert_eq!(v, vec!["[2,2,1]", "[4,4,2]"]);
+        let (_, v) = parse_vary("fluid.precision=\"f32\",\"f64\"").unwrap();
+        assert_eq!(v, vec!["\"f32\"", "\"f64\""]);
+        assert!(parse_vary("novalue").is_err());
+        assert!(parse_vary("a=1,,2").is_err());
+    }
+
+    #[test]
+    fn slope_and_pareto() {
+        // e = 3 N^-2 exactly: slope -2.
+        let pts: Vec<(f64, f64)> = [8.0, 16.0, 32.0].iter().map(|&n: &f64| (n, 3.0 * n.powi(-2))).collect();
+        assert!((log_slope(&pts).unwrap() + 2.0).abs() < 1e-12);
+        assert!(log_slope(&pts[..1]).is_none());
+        // (time, error): 0 is fastest; 2 is slower and better; 1 is slower than 0 and worse; 3 slowest, best.
+        let front = pareto_front(&[(1.0, 0.1), (2.0, 0.2), (3.0, 0.05), (4.0, 0.01), (f64::NAN, 0.0)]);
+        assert_eq!(front, vec![0, 2, 3]);
+    }
+}

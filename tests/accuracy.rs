@@ -1,0 +1,48 @@
+//! `blockflow bench accuracy --quick` (issue #9 point 1) as the CI runs it: the sweep machinery on the
+//! built-in suite, checked against known facts. Run with `cargo test --release --test accuracy`.
+
+mod common;
+
+use blockflow::bench_accuracy;
+use common::tmp;
+
+#[test]
+fn quick_accuracy_suite_meets_the_known_facts() {
+    let out = tmp("accuracy");
+    let configs = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs");
+    let cases = bench_accuracy::run(true, &out, &configs).unwrap();
+    let case = |n: &str| &cases.iter().find(|c| c.name == n).unwrap().report;
+    let err = |r: &blockflow::sweep::SweepReport, vals: &[&str]| {
+        let row = r.rows.iter().find(|x| x.values == vals).unwrap();
+        assert_eq!(row.status, "ok", "{vals:?}");
+        row.observables[r.error.as_ref().unwrap()]
+    };
+    // Poiseuille and Couette flow are exact for the TRT scheme with magic 3/16 (f64: rounding only).
+    for n in ["channel", "couette"] {
+        for res in ["8", "16"] {
+            assert!(err(case(n), &[res, "\"f64\""]) < 1e-12, "{n} at {res}");
+        }
+    }
+    // Taylor–Green in diffusive scaling converges at second order: the fitted order within 0.2 of 2.
+    let tg = case("taylor_green");
+    for (label, o) in &tg.orders {
+        assert!((o - 2.0).abs() < 0.2, "Taylor-Green {label}: order {o}");
+    }
+    // Drag array: the interpolated CLI boundary beats simple bounce-back at the same resolution, and
+    // f32 is within 1e-3 relative of f64 on the drag.
+    let d = case("drag_array");
+    for res in ["8", "12"] {
+        let cli = err(d, &[res, "0.125", "\"cli\"", "\"f64\""]);
+        let sbb = err(d, &[res, "0.125", "\"sbb\"", "\"f64\""]);
+        assert!(cli < sbb, "D = {res}: CLI {cli} vs SBB {sbb}");
+        let f32e = err(d, &[res, "0.125", "\"cli\"", "\"f32\""]);
+        assert!((f32e - cli).abs() < 1e-3, "D = {res}: f32 {f32e} vs f64 {cli}");
+    }
+    for c in &cases {
+        assert!(out.join(&c.name).join("sweep.csv").exists(), "{}", c.name);
+        assert!(out.join(&c.name).join("sweep.png").exists(), "{}", c.name);
+        assert!(!c.report.pareto.is_empty(), "{}", c.name);
+    }
+    assert!(bench_accuracy::to_markdown(&cases).contains("### drag_array"));
+    std::fs::remove_dir_all(&out).ok();
+}
