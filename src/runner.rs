@@ -348,20 +348,6 @@ fn vtk_step<T: Real>(vtk: &mut VtkSeries, pvtk: Option<&mut ParticleVtkSeries>, 
 
 pub use crate::run_setup::*;
 
-fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
-
 fn write_intervals(path: &Path, intervals: &[crate::pipeline::IntervalStats]) -> Result<()> {
     let procs = intervals.first().map_or(0, |i| i.process_load.len());
     let mut text = String::from(
@@ -660,7 +646,11 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     summary.balance = Some(BalanceSummary {
         strategy: format!("{:?}", cfg.balance.strategy).to_lowercase(),
         interval: cfg.balance.interval,
-        imbalance_median: median(&imbalance),
+        imbalance_median: if imbalance.is_empty() {
+            0.0
+        } else {
+            crate::estimator::stats::median(&imbalance)
+        },
         imbalance,
         predicted_imbalance: pipe
             .intervals

@@ -222,6 +222,7 @@ pub fn figure6(path: &Path, series: &[BlockSeries]) -> Result<()> {
         line_panel(
             &panels[0],
             "fluid cells per block",
+            "t* = t / T",
             "F (fluid cells)",
             t,
             (0.0, f_top),
@@ -230,28 +231,37 @@ pub fn figure6(path: &Path, series: &[BlockSeries]) -> Result<()> {
         line_panel(
             &panels[1],
             "LBM time per block",
+            "t* = t / T",
             "m_LBM (ms per step)",
             t,
             (0.0, m_top),
             &bottom,
         )?;
         // Legend in its own strip, level with the top panel's plot area: it never covers data.
-        legend.draw(&Text::new("block row", (12, 60), bold(18.0)))?;
-        for (&row, &i) in &rows {
-            let y = 100 + 32 * i as i32;
-            legend.draw(&PathElement::new(vec![(12, y), (52, y)], colour(i).stroke_width(4)))?;
-            let label = font(18.0).pos(Pos::new(HPos::Left, VPos::Center));
-            legend.draw(&Text::new(format!("row {row}"), (62, y), label))?;
-        }
+        let names: Vec<String> = rows.keys().map(|r| format!("row {r}")).collect();
+        legend_strip(&legend, "block row", &names, 18.0)?;
         base.present()?;
         Ok(())
     })
 }
 
-/// One line chart panel of [`figure6`].
-fn line_panel(
+/// A legend in its own strip: a bold heading, then one coloured line and name per entry (colour i).
+pub(super) fn legend_strip(area: &Area, heading: &str, names: &[String], size: f64) -> DrawResult {
+    area.draw(&Text::new(heading.to_string(), (12, 60), bold(18.0)))?;
+    for (i, name) in names.iter().enumerate() {
+        let y = 100 + 32 * i as i32;
+        area.draw(&PathElement::new(vec![(12, y), (52, y)], colour(i).stroke_width(4)))?;
+        let label = font(size).pos(Pos::new(HPos::Left, VPos::Center));
+        area.draw(&Text::new(name.clone(), (62, y), label))?;
+    }
+    Ok(())
+}
+
+/// One line chart panel of [`figure6`] and the study figures.
+pub(super) fn line_panel(
     area: &Area,
     title: &str,
+    x_desc: &str,
     y_desc: &str,
     (x0, x1): (f64, f64),
     (y0, y1): (f64, f64),
@@ -269,7 +279,7 @@ fn line_panel(
     let fy = move |v: &f64| tick(*v, dy);
     chart
         .configure_mesh()
-        .x_desc("t* = t / T")
+        .x_desc(x_desc)
         .y_desc(y_desc)
         .label_style(font(17.0))
         .axis_desc_style(font(19.0))

@@ -5,10 +5,9 @@
 //! Same conventions as [`super::plots`]: embedded font, non-finite values skipped, an error naming the
 //! file when there is nothing to draw.
 
-use super::plots::{bold, canvas, colour, decimals, font, range, render, tick, GRID};
+use super::plots::{canvas, colour, legend_strip, line_panel, range, render};
 use crate::error::{Error, Result};
 use plotters::prelude::*;
-use plotters::style::text_anchor::{HPos, Pos, VPos};
 use std::path::Path;
 
 /// Size of [`figure10`] and [`figure11`] in pixels.
@@ -54,39 +53,22 @@ fn chart(path: &Path, title: &str, y_desc: &str, scale: f64, lines: &[StrategyLi
     render(path, || {
         let (base, root) = canvas(path, STUDY_FIGURE_SIZE, title)?;
         let (plot, legend) = root.split_horizontally(STUDY_FIGURE_SIZE.0 - 220);
-        let mut c = ChartBuilder::on(&plot)
-            .margin(12)
-            .margin_right(30)
-            .x_label_area_size(60)
-            .y_label_area_size(110)
-            .build_cartesian_2d(x0..x1, 0.0..y1)?;
-        let (dx, dy) = (decimals(x1 - x0), decimals(y1));
-        let fx = move |v: &f64| tick(*v, dx);
-        let fy = move |v: &f64| tick(*v, dy);
-        c.configure_mesh()
-            .x_desc("time step (end of interval)")
-            .y_desc(y_desc)
-            .label_style(font(17.0))
-            .axis_desc_style(font(19.0))
-            .x_label_formatter(&fx)
-            .y_label_formatter(&fy)
-            .x_labels(8)
-            .y_labels(8)
-            .light_line_style(WHITE)
-            .bold_line_style(GRID)
-            .draw()?;
-        for (i, (_, pts)) in lines.iter().enumerate() {
-            let col = colour(i);
-            c.draw_series(LineSeries::new(pts.iter().copied(), col.stroke_width(2)))?;
-            c.draw_series(pts.iter().map(|&p| Circle::new(p, 3, col.filled())))?;
-        }
-        legend.draw(&Text::new("strategy", (12, 60), bold(18.0)))?;
-        for (i, (name, _)) in lines.iter().enumerate() {
-            let y = 100 + 32 * i as i32;
-            legend.draw(&PathElement::new(vec![(12, y), (52, y)], colour(i).stroke_width(4)))?;
-            let label = font(18.0).pos(Pos::new(HPos::Left, VPos::Center));
-            legend.draw(&Text::new(name.clone(), (62, y), label))?;
-        }
+        let coloured: Vec<(RGBColor, Vec<(f64, f64)>)> = lines
+            .iter()
+            .enumerate()
+            .map(|(i, (_, p))| (colour(i), p.clone()))
+            .collect();
+        line_panel(
+            &plot,
+            "",
+            "time step (end of interval)",
+            y_desc,
+            (x0, x1),
+            (0.0, y1),
+            &coloured,
+        )?;
+        let names: Vec<String> = lines.iter().map(|l| l.0.clone()).collect();
+        legend_strip(&legend, "strategy", &names, 18.0)?;
         base.present()?;
         Ok(())
     })

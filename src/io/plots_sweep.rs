@@ -1,7 +1,7 @@
 //! PNG figure of `blockflow sweep` (issue #9 point 1): error against run time on log–log axes, one line
 //! per variant, the fitted order of convergence in the legend. Same conventions as [`super::plots`].
 
-use super::plots::{bold, canvas, colour, font, render, GRID};
+use super::plots::{bold, canvas, colour, font, legend_strip, render, GRID};
 use crate::error::{Error, Result};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -57,13 +57,8 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
             c.draw_series(LineSeries::new(pts.iter().copied(), col.stroke_width(2)))?;
             c.draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled())))?;
         }
-        legend.draw(&Text::new("variant", (12, 60), bold(18.0)))?;
-        for (i, (name, _)) in lines.iter().enumerate() {
-            let y = 100 + 32 * i as i32;
-            legend.draw(&PathElement::new(vec![(12, y), (52, y)], colour(i).stroke_width(4)))?;
-            let label = font(16.0).pos(Pos::new(HPos::Left, VPos::Center));
-            legend.draw(&Text::new(name.clone(), (62, y), label))?;
-        }
+        let names: Vec<String> = lines.iter().map(|l| l.0.clone()).collect();
+        legend_strip(&legend, "variant", &names, 16.0)?;
         base.present()?;
         Ok(())
     })

@@ -40,17 +40,8 @@ pub struct Row {
 
 /// Median of the finite values (NaN when none).
 pub fn median(v: impl Iterator<Item = f64>) -> f64 {
-    let mut s: Vec<f64> = v.filter(|x| x.is_finite()).collect();
-    if s.is_empty() {
-        return f64::NAN;
-    }
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
+    let s: Vec<f64> = v.filter(|x| x.is_finite()).collect();
+    crate::estimator::stats::median(&s)
 }
 
 /// Table 3 rows, relative to the strategy named `none` (or the first one).
