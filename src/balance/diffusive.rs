@@ -277,14 +277,9 @@ impl Distribute for Diffusive {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::domain::DomainSpec;
 
     fn graph(blocks: [usize; 3]) -> BlockGraph {
-        BlockGraph::from_domain(&DomainSpec {
-            blocks,
-            block_size: [8, 8, 8],
-            periodic: [false; 3],
-        })
+        super::super::strategy::closed_grid(blocks)
     }
 
     fn max_load(w: &[f64], o: &[u32], p: usize) -> f64 {

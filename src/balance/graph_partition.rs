@@ -157,14 +157,9 @@ impl Distribute for Metis {
 mod tests {
     use super::super::strategy::{process_loads, SplitMix};
     use super::*;
-    use crate::domain::DomainSpec;
 
     fn graph(blocks: [usize; 3]) -> BlockGraph {
-        BlockGraph::from_domain(&DomainSpec {
-            blocks,
-            block_size: [8, 8, 8],
-            periodic: [false; 3],
-        })
+        super::super::strategy::closed_grid(blocks)
     }
 
     #[test]

@@ -314,6 +314,16 @@ pub fn scale_table() -> String {
     out
 }
 
+/// The block graph of a closed grid of 8³ blocks (for tests).
+#[cfg(test)]
+pub(crate) fn closed_grid(blocks: [usize; 3]) -> BlockGraph {
+    BlockGraph::from_domain(&crate::domain::DomainSpec {
+        blocks,
+        block_size: [8, 8, 8],
+        periodic: [false; 3],
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
