@@ -116,24 +116,26 @@ pub fn stability_map(
             .margin(12)
             .x_label_area_size(70)
             .y_label_area_size(140)
-            .build_cartesian_2d((0..nx).into_segmented(), (0..ny).into_segmented())?;
-        let label = |list: &[String], v: &SegmentValue<i32>| match v {
-            SegmentValue::CenterOf(i) => list.get(*i as usize).cloned().unwrap_or_default(),
-            _ => String::new(),
-        };
-        let xl = |v: &SegmentValue<i32>| label(xs, v);
-        let yl = |v: &SegmentValue<i32>| label(ys, v);
+            .build_cartesian_2d(0.0..nx as f64, 0.0..ny as f64)?;
         c.configure_mesh()
             .disable_mesh()
             .x_desc(x_key)
             .y_desc(y_key)
-            .label_style(font(15.0))
             .axis_desc_style(font(19.0))
-            .x_labels(xs.len())
-            .y_labels(ys.len())
-            .x_label_formatter(&xl)
-            .y_label_formatter(&yl)
+            .x_labels(0)
+            .y_labels(0)
             .draw()?;
+        // Value labels at the cell centres (drawn on the whole canvas, in its pixel coordinates).
+        for (i, x) in xs.iter().enumerate() {
+            let (px, py) = c.backend_coord(&(i as f64 + 0.5, 0.0));
+            let style = font(15.0).pos(Pos::new(HPos::Center, VPos::Top));
+            base.draw(&Text::new(x.clone(), (px, py + 8), style))?;
+        }
+        for (j, y) in ys.iter().enumerate() {
+            let (px, py) = c.backend_coord(&(0.0, j as f64 + 0.5));
+            let style = font(15.0).pos(Pos::new(HPos::Right, VPos::Center));
+            base.draw(&Text::new(y.clone(), (px - 8, py), style))?;
+        }
         let green = RGBColor(0, 158, 115);
         let amber = RGBColor(230, 159, 0);
         let red = RGBColor(213, 94, 0);
@@ -144,21 +146,13 @@ pub fn stability_map(
                     Outcome::Inaccurate => amber,
                     Outcome::Unstable(_) => red,
                 };
-                let (i, j) = (i as i32, j as i32);
-                let (a, b) = (
-                    (SegmentValue::Exact(i), SegmentValue::Exact(j)),
-                    (SegmentValue::Exact(i + 1), SegmentValue::Exact(j + 1)),
-                );
-                c.draw_series(std::iter::once(Rectangle::new([a.clone(), b.clone()], col.filled())))?;
-                c.draw_series(std::iter::once(Rectangle::new(
-                    [a.clone(), b.clone()],
-                    WHITE.stroke_width(2),
-                )))?;
-                if let Outcome::Unstable(Some(s)) = o {
-                    let (px, py) = c.backend_coord(&a);
-                    let (qx, qy) = c.backend_coord(&b);
-                    let style = font(14.0).color(&WHITE).pos(Pos::new(HPos::Center, VPos::Center));
-                    plot.draw(&Text::new(format!("{s}"), ((px + qx) / 2, (py + qy) / 2), style))?;
+                let (a, b) = ((i as f64, j as f64), (i as f64 + 1.0, j as f64 + 1.0));
+                c.draw_series(std::iter::once(Rectangle::new([a, b], col.filled())))?;
+                c.draw_series(std::iter::once(Rectangle::new([a, b], WHITE.stroke_width(2))))?;
+                if let Outcome::Unstable(Some(st)) = o {
+                    let (px, py) = c.backend_coord(&(i as f64 + 0.5, j as f64 + 0.5));
+                    let style = font(15.0).color(&WHITE).pos(Pos::new(HPos::Center, VPos::Center));
+                    base.draw(&Text::new(format!("step {st}"), (px, py), style))?;
                 }
             }
         }
