@@ -1,6 +1,7 @@
 //! `blockflow bench accuracy [--quick] [--out DIR]` (issue #9 points 1 and 6): the built-in suite of
 //! run time against error. Every scene runs through [`crate::sweep`] over its resolution and both
-//! precisions (and for the drag array three solid fractions and both particle boundaries); per scene the
+//! precisions (for the drag array three solid fractions and both particle boundaries, for the settling
+//! sphere the cases of ten Cate et al. 2002 against their measured peak speed); per scene the
 //! Pareto front (the cheapest run for each error level), the fitted orders, and the f32 error and speedup
 //! next to f64 are printed. `--quick` is the CI size.
 
@@ -15,6 +16,8 @@ struct Case {
     vary: Vec<(&'static str, Vec<&'static str>)>,
     sets: Vec<&'static str>,
     error: &'static str,
+    /// Repeats (the fastest counts); long runs need fewer.
+    repeat: Option<usize>,
 }
 
 fn suite(quick: bool) -> Vec<Case> {
@@ -30,6 +33,7 @@ fn suite(quick: bool) -> Vec<Case> {
             ],
             sets: vec![],
             error: "l2_error",
+            repeat: None,
         },
         Case {
             name: "couette",
@@ -40,6 +44,7 @@ fn suite(quick: bool) -> Vec<Case> {
             ],
             sets: vec![],
             error: "l2_error",
+            repeat: None,
         },
         Case {
             name: "taylor_green",
@@ -50,6 +55,7 @@ fn suite(quick: bool) -> Vec<Case> {
             ],
             sets: vec![],
             error: "l2_error",
+            repeat: None,
         },
         Case {
             name: "drag_array",
@@ -65,6 +71,21 @@ fn suite(quick: bool) -> Vec<Case> {
             ],
             sets: vec![],
             error: "relative_error",
+            repeat: None,
+        },
+        // The settling sphere against ten Cate et al. (2002), in SI units: the extreme cases E1 (Re 1.5) and
+        // E4 (Re 32) in the full suite, E4 in the quick one. One run each: they take 10 s to minutes.
+        Case {
+            name: "settling_sphere",
+            file: "settling_sphere.toml",
+            vary: vec![
+                ("scene.case", pick(vec!["\"E4\""], vec!["\"E1\"", "\"E4\""])),
+                ("scene.resolution", pick(vec!["6", "8"], vec!["6", "8", "12"])),
+                ("fluid.precision", vec!["\"f64\"", "\"f32\""]),
+            ],
+            sets: vec![],
+            error: "relative_error",
+            repeat: Some(1),
         },
     ]
 }
@@ -90,10 +111,13 @@ pub fn run(quick: bool, out: &Path, configs: &Path) -> Result<Vec<AccuracyCase>>
                 .collect(),
             sets: c.sets.iter().map(|s| s.to_string()).collect(),
             // The fastest of a few repeats: the runs are short and the machine is noisy.
-            repeat: if quick { 2 } else { 3 },
+            repeat: c.repeat.unwrap_or(if quick { 2 } else { 3 }),
             steps: None,
             error: Some(c.error.to_string()),
             out: out.join(c.name),
+            record_refused: false,
+            // Runs over 5 s are not repeated: their timing noise is small next to their length.
+            repeat_until_seconds: Some(5.0),
         };
         res.push(AccuracyCase {
             name: c.name.to_string(),

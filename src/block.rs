@@ -57,10 +57,30 @@ pub struct Block<T: Real> {
     particles: UnsafeCell<Option<crate::coupling::ParticleCells>>,
 }
 
-impl<T: Real> Block<T> {
-    /// Builds block `id` of `d` from the geometry: flags (ghost layer included), segments, links and the
-    /// ghost regions it needs. Fields start at rest; call [`Block::init`] to set an initial state.
-    pub fn new(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+/// What a block takes from the scene's static geometry (walls, planes, no-fluid regions): cell flags
+/// (ghost layer included), fluid runs, bounce-back links and the cell counts. Derived once per block in
+/// [`Block::new`] ("a scene maps its static geometry once", DESIGN.md principle 2); `--no-skip`
+/// re-derives it every step ([`Block::check_static_geometry`]) to measure what that saves.
+#[derive(Clone, Debug)]
+pub struct StaticGeometry<T: Real> {
+    /// Index arithmetic of the block's fields.
+    pub layout: Layout,
+    /// Flag byte per cell, indexed like the fields (ghost layer included).
+    pub flags: Vec<u8>,
+    /// Runs of fluid cells along x.
+    pub segments: Vec<Segment>,
+    /// Bounce-back links of the fluid cells.
+    pub links: Links<T>,
+    /// Interior fluid cells.
+    pub fluid_cells: usize,
+    /// Interior fluid cells with a wall neighbour.
+    pub near_boundary_cells: usize,
+}
+
+impl<T: Real> StaticGeometry<T> {
+    /// Classifies every cell of block `id` of `d` (ghost layer included) against the geometry, cell by
+    /// cell, and derives flags, fluid runs and links from it.
+    pub fn derive(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
         let layout = Layout::new::<T>(d.block_size);
         let origin = d.origin(id);
         let [fx, fy, fz] = layout.full();
@@ -138,6 +158,30 @@ impl<T: Real> Block<T> {
                 }
             }
         }
+        StaticGeometry {
+            layout,
+            flags: fl,
+            segments,
+            links,
+            fluid_cells,
+            near_boundary_cells: near,
+        }
+    }
+}
+
+impl<T: Real> Block<T> {
+    /// Builds block `id` of `d` from the geometry: flags (ghost layer included), segments, links and the
+    /// ghost regions it needs. Fields start at rest; call [`Block::init`] to set an initial state.
+    pub fn new(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+        let StaticGeometry {
+            layout,
+            flags: fl,
+            segments,
+            links,
+            fluid_cells,
+            near_boundary_cells: near,
+        } = StaticGeometry::derive(d, geo, id);
+        let origin = d.origin(id);
         let mut recv = Vec::new();
         if fluid_cells > 0 {
             for &off in NEIGHBOURS.iter() {
@@ -296,6 +340,87 @@ impl<T: Real> Block<T> {
         pc: Option<crate::coupling::ParticleCells>,
     ) -> Option<crate::coupling::ParticleCells> {
         std::mem::replace(&mut *self.particles.get(), pc)
+    }
+
+    /// `--no-skip`'s stand-in for "static geometry mapped once": re-derives this block's flags, fluid
+    /// runs and links from the scene geometry, cell by cell, and checks them against the stored ones
+    /// (which every task keeps using, so results do not change). Panics if they differ: the static
+    /// geometry is then not static.
+    pub fn check_static_geometry(&self, d: &DomainSpec, geo: &Geometry) {
+        let s = StaticGeometry::<T>::derive(d, geo, self.id);
+        let same_moving = s.links.moving.len() == self.links.moving.len()
+            && s.links
+                .moving
+                .iter()
+                .zip(&self.links.moving)
+                .all(|(a, b)| a.0 == b.0 && a.1.to_f64().to_bits() == b.1.to_f64().to_bits());
+        assert!(
+            s.layout == self.layout
+                && s.flags == self.flags
+                && s.segments == self.segments
+                && s.links.noslip == self.links.noslip
+                && same_moving
+                && s.fluid_cells == self.fluid_cells
+                && s.near_boundary_cells == self.near_boundary_cells,
+            "block {}: the static geometry derived again differs from the one mapped at set-up",
+            self.id
+        );
+    }
+
+    /// The general path of the sweep's cell selection (`--no-skip`): visits every interior cell, checks
+    /// its flag (and the particle overlay's owner) one by one, and writes the runs of fluid cells into
+    /// `out`: the same runs as [`Block::fluid_segments`], which are otherwise computed once per mapping.
+    /// Returns the number of fluid cells found.
+    pub fn scan_fluid_runs(&self, out: &mut Vec<Segment>) -> usize {
+        out.clear();
+        let l = self.layout;
+        let [fx, fy, fz] = l.full();
+        let owner = self
+            .particle_cells()
+            .map(|pc| pc.owner.as_slice())
+            .filter(|o| o.len() == l.sxy * fz);
+        let mut n = 0;
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                let mut run: Option<Segment> = None;
+                for x in 1..fx - 1 {
+                    let i = l.idx(x, y, z);
+                    let fluid = self.flags[i] & flags::FLUID != 0 && owner.is_none_or(|o| o[i] == 0);
+                    if !fluid {
+                        if let Some(s) = run.take() {
+                            out.push(s);
+                        }
+                        continue;
+                    }
+                    n += 1;
+                    match run.as_mut() {
+                        Some(s) => s.len += 1,
+                        None => run = Some(Segment { start: i, len: 1 }),
+                    }
+                }
+                if let Some(s) = run.take() {
+                    out.push(s);
+                }
+            }
+        }
+        n
+    }
+
+    /// The general path of the boundary task's cell selection (`--no-skip`): visits every interior cell
+    /// and counts those flagged near a wall (a block without boundary cells finds none, cell by cell).
+    pub fn scan_near_boundary(&self) -> usize {
+        let l = self.layout;
+        let [fx, fy, fz] = l.full();
+        let mut n = 0;
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                for x in 1..fx - 1 {
+                    let f = self.flags[l.idx(x, y, z)];
+                    n += usize::from(f & flags::FLUID != 0 && f & flags::NEAR_BOUNDARY != 0);
+                }
+            }
+        }
+        n
     }
 
     /// Bytes of PDF storage (both fields).

@@ -71,6 +71,11 @@ pub enum Command {
         /// processes.* and balance.* keys on top; the final state is bitwise the uninterrupted run's.
         #[arg(long, value_name = "PATH")]
         restart: Option<PathBuf>,
+        /// Run every task on every block: switch off the skip rules (outside blocks, blocks without
+        /// boundary cells, blocks without particles, static geometry mapped once, the fused kernel) to
+        /// measure what they save (run.no_skip = true). Slower; the results are bitwise the same.
+        #[arg(long)]
+        no_skip: bool,
     },
     /// Print the machine's topology and the thread placement the options would get.
     Topology {
@@ -236,6 +241,16 @@ pub enum BenchKind {
     /// Cost of the balancing step: curve keys and splits for 100 000 blocks, diffusive and METIS on the
     /// hopper's 288 blocks for 32 processes.
     Balance,
+    /// Skipped work, measured: channel, calibration, hopper-small and granular_box with the skip rules and
+    /// with --no-skip; tasks per kind, tasks skipped per rule, wall time saved, checksums compared.
+    Skip {
+        /// The CI size (under 3 minutes on 2 cores).
+        #[arg(long)]
+        quick: bool,
+        /// Output folder (skip.csv, skip.md and the runs).
+        #[arg(long, default_value = "out/skip")]
+        out: PathBuf,
+    },
     /// Run time against error: channel, couette, Taylor-Green and the drag array (CLI and SBB, three solid
     /// fractions) over resolution, f64 and f32; Pareto front per scene.
     Accuracy {
@@ -267,6 +282,7 @@ pub fn execute(cli: Cli) -> Result<()> {
             checkpoint_wall,
             checkpoints_kept,
             restart,
+            no_skip,
         } => {
             if vtk == Some(0) {
                 return Err(Error::Config("--vtk 0: must be at least 1".into()));
@@ -284,6 +300,9 @@ pub fn execute(cli: Cli) -> Result<()> {
             }
             if let Some(k) = checkpoints_kept {
                 set.push(format!("run.checkpoints_kept={k}"));
+            }
+            if no_skip {
+                set.push("run.no_skip=true".into());
             }
             // Command-line options are overrides of the stable keys, checked like the file's values.
             if let Some(p) = processes {
@@ -466,6 +485,8 @@ pub fn execute(cli: Cli) -> Result<()> {
                 steps,
                 error,
                 out: out.clone(),
+                record_refused: false,
+                repeat_until_seconds: None,
             };
             let r = crate::sweep::sweep(&opts)?;
             print_out(&format!(
@@ -514,6 +535,22 @@ pub fn execute(cli: Cli) -> Result<()> {
                 crate::stress::to_markdown(&r),
                 out.display()
             ));
+            Ok(())
+        }
+        Command::Bench {
+            which: BenchKind::Skip { quick, out },
+        } => {
+            let report = crate::bench_skip::run(quick, &out, &crate::bench_accuracy::configs_dir())?;
+            print_out(&format!(
+                "{}results in {}\n",
+                crate::bench_skip::to_markdown(&report),
+                out.display()
+            ));
+            if report.iter().any(|s| !s.checksums_equal()) {
+                return Err(Error::Config(
+                    "bench skip: the checksums with and without --no-skip differ (see the table)".into(),
+                ));
+            }
             Ok(())
         }
         Command::Bench {

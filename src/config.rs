@@ -284,6 +284,12 @@ pub struct RunConfig {
     /// Checkpoints kept: after each write all but the newest this many are deleted (default 2).
     #[serde(default = "d_checkpoints_kept")]
     pub checkpoints_kept: usize,
+    /// Run every task on every block (`--no-skip`; default false): switches off the skip rules of
+    /// DESIGN.md principle 2 (outside blocks, blocks without boundary cells, blocks without particles,
+    /// static geometry mapped once, the fused kernel) to measure what they save. For measurement only:
+    /// slower, and the results are bitwise the same. See [`crate::pipeline`].
+    #[serde(default)]
+    pub no_skip: bool,
 }
 
 fn d_checkpoints_kept() -> usize {
@@ -300,6 +306,7 @@ impl Default for RunConfig {
             checkpoint_every: None,
             checkpoint_wall: None,
             checkpoints_kept: d_checkpoints_kept(),
+            no_skip: false,
         }
     }
 }

@@ -125,6 +125,36 @@ pub unsafe fn stream_collide<T: Real>(b: &Block<T>, p: usize, params: &TrtParams
     }
 }
 
+/// The general path of [`boundary`] (`run.no_skip`): visits every interior cell to find the cells next to
+/// a wall, one by one, then applies the block's links (a block without boundary cells finds none and
+/// applies nothing). Same bits as [`boundary`].
+pub fn boundary_general<T: Real>(b: &Block<T>, p: usize) {
+    let near = b.scan_near_boundary();
+    assert_eq!(
+        near, b.near_boundary_cells,
+        "block {}: near-boundary cells found by the scan differ from the mapped ones",
+        b.id
+    );
+    boundary(b, p);
+}
+
+/// The general path of [`stream_collide`] (`run.no_skip`): the fluid runs are found by visiting every
+/// interior cell's flag (and particle owner) instead of the runs mapped once, and the unfused kernels
+/// run (pull-stream, then collide in place) instead of the fused one. A block without fluid visits its
+/// cells and sweeps nothing. Same bits as [`stream_collide`] (the kernels' sweeps do not depend on where
+/// a run starts, and the fused kernel equals stream followed by collide bit for bit).
+///
+/// # Safety
+/// As for [`stream_collide`].
+pub unsafe fn stream_collide_general<T: Real>(b: &Block<T>, p: usize, params: &TrtParams) -> SweepStats {
+    let mut runs = Vec::new();
+    b.scan_fluid_runs(&mut runs);
+    let src = b.field(p);
+    let dst = b.field_mut(1 - p);
+    sweep::stream(src, dst, &runs);
+    sweep::collide(dst, &runs, params)
+}
+
 /// δρ and u of the stored (post-collision) state of element `i` of field `p`.
 pub fn cell_moments<T: Real>(b: &Block<T>, p: usize, i: usize, force: [f64; 3]) -> (f64, [f64; 3]) {
     let f: [T; Q] = b.field(p).cell(i);

@@ -10,6 +10,7 @@ pub mod bench_accuracy;
 pub mod bench_kernel;
 pub mod bench_rigid;
 pub mod bench_scheduler;
+pub mod bench_skip;
 pub mod block;
 pub mod calibrate;
 pub mod checkpoint;

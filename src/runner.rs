@@ -419,6 +419,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     write_atomic(&dir.join("effective.toml"), eff_text.as_bytes())?;
     let mut sim = build_sim::<T>(cfg, &scene)?;
     let mut pipe = make_pipeline(cfg, &sim)?;
+    pipe.no_skip = cfg.run.no_skip;
     if let Some(ck) = &opts.restart {
         let owners = pipe.owners().to_vec();
         ck.restore(&mut sim, &owners, pipe.executor())?;
@@ -451,10 +452,18 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         }
         None => None,
     };
-    // Body 0 over time (position, velocity, hydrodynamic force) for scenes with few bodies.
+    // Body 0 over time (position, velocity, hydrodynamic force) for scenes with few bodies: recorded after
+    // every graph run (so that peaks are not missed between series rows), in lattice units and, for scenes
+    // set up in SI units, in SI units as well.
+    let few_bodies = sim.particles.as_ref().is_some_and(|p| p.bodies(sim.step).len() <= 16);
     let mut trajectory: Vec<(f64, blockflow_kernels::rigid::Body)> = Vec::new();
     let mut traj_text = String::from("step,time,x,y,z,vx,vy,vz,wx,wy,wz,fx,fy,fz\n");
-    let mut record = |sim: &Simulation<T>, text: &mut String| {
+    let mut traj_si = String::from("step,time_s,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,fx_n,fy_n,fz_n\n");
+    let units = scene.units;
+    let mut record = |sim: &Simulation<T>, text: &mut String, si: &mut String| {
+        if !few_bodies {
+            return;
+        }
         if let Some(p) = sim.particles.as_ref() {
             if let Some(b) = p.bodies(sim.step).first() {
                 let t = sim.step as f64 * p.dt;
@@ -464,10 +473,27 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
                     "{},{t:.9e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e},{:.12e}\n",
                     sim.step, x.x, x.y, x.z, v.x, v.y, v.z, w.x, w.y, w.z, f.x, f.y, f.z
                 );
+                if let Some(u) = units {
+                    let (lv, lf) = (u.dx / u.dt, u.density * u.dx.powi(4) / (u.dt * u.dt));
+                    *si += &format!(
+                        "{},{:.9e},{:.9e},{:.9e},{:.9e},{:.9e},{:.9e},{:.9e},{:.9e},{:.9e},{:.9e}\n",
+                        sim.step,
+                        t * u.dt,
+                        x.x * u.dx,
+                        x.y * u.dx,
+                        x.z * u.dx,
+                        v.x * lv,
+                        v.y * lv,
+                        v.z * lv,
+                        f.x * lf,
+                        f.y * lf,
+                        f.z * lf
+                    );
+                }
             }
         }
     };
-    record(&sim, &mut traj_text);
+    record(&sim, &mut traj_text, &mut traj_si);
     let mut pvtk = match (vtk_every, &sim.particles) {
         (Some(_), Some(_)) => Some(ParticleVtkSeries::new(&dir).map_err(|e| io_err(&dir, e))?),
         _ => None,
@@ -508,6 +534,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         cores: pipe.executor().cores().to_vec(),
         restarted_from: opts.restart.as_ref().map(|c| c.path.display().to_string()),
         restart_step: opts.restart.as_ref().map(|c| c.step),
+        units: scene.units,
         ..Default::default()
     };
     if let Some(p) = sim.particles.as_mut() {
@@ -564,8 +591,8 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
             if let (Some(ps), Some(row)) = (pseries.as_mut(), particle_row(&sim)) {
                 ps.push(&row)?;
             }
-            record(&sim, &mut traj_text);
         }
+        record(&sim, &mut traj_text, &mut traj_si);
         if let (Some(v), Some(every)) = (vtk.as_mut(), vtk_every) {
             if s % every == 0 {
                 vtk_step(v, pvtk.as_mut(), &sim)?;
@@ -601,8 +628,11 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         ps.finish()?;
         std::fs::rename(partial(&pseries_path), &pseries_path).map_err(|e| io_err(&pseries_path, e))?;
     }
-    if sim.particles.as_ref().is_some_and(|p| p.bodies(sim.step).len() <= 16) {
+    if few_bodies {
         write_atomic(&dir.join("trajectory.csv"), traj_text.as_bytes())?;
+        if units.is_some() {
+            write_atomic(&dir.join("trajectory_si.csv"), traj_si.as_bytes())?;
+        }
     }
     if let Some(path) = &opts.trace {
         pipe.write_trace(path).map_err(|e| io_err(path, e))?;
@@ -623,6 +653,22 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         summary.checkpoint_bytes = Some(ck_bytes);
     }
     let t = &pipe.totals;
+    summary.no_skip = pipe.no_skip;
+    summary.tasks_by_kind = crate::pipeline::TASK_KINDS
+        .iter()
+        .zip(t.tasks_by_kind)
+        .filter(|(_, n)| *n > 0)
+        .map(|(k, n)| (k.to_string(), n))
+        .collect();
+    summary.tasks_cpu_seconds_by_kind = crate::pipeline::TASK_KINDS
+        .iter()
+        .zip(t.tasks_by_kind.iter().zip(t.cpu_by_kind))
+        .filter(|(_, (n, _))| **n > 0)
+        .map(|(k, (_, c))| (k.to_string(), c))
+        .collect();
+    let rules = crate::pipeline::SKIP_RULES.iter().map(|r| r.to_string());
+    summary.unskipped_by_rule = pipe.no_skip.then(|| rules.clone().zip(t.unskipped).collect());
+    summary.unskipped_cpu_seconds_by_rule = pipe.no_skip.then(|| rules.zip(t.unskipped_cpu).collect());
     let coupled = sim.blocks.iter().any(|b| b.particle_cells().is_some());
     summary.parts_seconds = PartsSeconds {
         lbm: t.part_cpu[0],

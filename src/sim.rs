@@ -69,6 +69,9 @@ pub struct Simulation<T: Real> {
     pub work: StepWork,
     /// Rigid bodies, if the scene has any.
     pub particles: Option<crate::particles::Particles>,
+    /// The static geometry the blocks were built from (kept for `run.no_skip`, which re-derives every
+    /// block's flags and links from it each step).
+    pub geometry: Geometry,
 }
 
 impl<T: Real> Simulation<T> {
@@ -93,6 +96,7 @@ impl<T: Real> Simulation<T> {
             times: PartTimes::default(),
             work: StepWork::default(),
             particles: None,
+            geometry: geo.clone(),
         }
     }
 

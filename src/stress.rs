@@ -53,7 +53,11 @@ pub fn parse_range(s: &str) -> Result<(String, Vec<String>)> {
         .map(|i| {
             let t = i as f64 / (n - 1) as f64;
             let x = if log { a * (b / a).powf(t) } else { a + (b - a) * t };
-            format!("{}", (x * 1e9).round() / 1e9)
+            // Six significant digits (log ranges give long decimals otherwise).
+            format!(
+                "{}",
+                format!("{x:.5e}").parse::<f64>().expect("a formatted float parses")
+            )
         })
         .collect();
     Ok((k.trim().to_string(), vals))
@@ -80,14 +84,31 @@ pub fn stress(opts: &StressOptions) -> Result<StressReport> {
         steps: opts.steps,
         error: opts.error.clone(),
         out: opts.out.clone(),
+        record_refused: true,
+        repeat_until_seconds: None,
     };
     let r = sweep::sweep(&so)?;
+    // A map the scene refuses everywhere is a mistake in the ranges: say why.
+    if let Some(msg) = r
+        .rows
+        .iter()
+        .all(|x| x.status == "refused")
+        .then(|| r.rows[0].message.clone())
+        .flatten()
+    {
+        return Err(Error::Config(format!(
+            "stress: the scene refuses every combination, e.g.: {msg}"
+        )));
+    }
     let _ = std::fs::rename(opts.out.join("sweep.csv"), opts.out.join("stress.csv"));
     let _ = std::fs::remove_file(opts.out.join("sweep.png"));
     let outcomes: Vec<Outcome> = r
         .rows
         .iter()
         .map(|row| {
+            if row.status == "refused" {
+                return Outcome::Refused;
+            }
             if row.status != "ok" {
                 return Outcome::Unstable(row.failed_step);
             }
@@ -109,11 +130,7 @@ pub fn stress(opts: &StressOptions) -> Result<StressReport> {
     let cells: Vec<Vec<Outcome>> = (0..ys.len())
         .map(|j| (0..xs.len()).map(|i| outcomes[i * ys.len() + j].clone()).collect())
         .collect();
-    let title = format!(
-        "{}: stability after {} steps",
-        opts.scene.display(),
-        steps_label(opts.steps)
-    );
+    let title = format!("{}: stability after {}", opts.scene.display(), steps_label(opts.steps));
     stability_map(
         &opts.out.join("stress.png"),
         &title,
@@ -125,7 +142,7 @@ pub fn stress(opts: &StressOptions) -> Result<StressReport> {
 }
 
 fn steps_label(s: Option<u64>) -> String {
-    s.map_or("the scene's steps".into(), |n| n.to_string())
+    s.map_or("the scene's own step count".into(), |n| format!("{n} steps"))
 }
 
 /// The map in words: per value of the second key, where the stable region ends along the first.
@@ -142,6 +159,7 @@ pub fn to_markdown(r: &StressReport) -> String {
             Outcome::Inaccurate => "inaccurate".to_string(),
             Outcome::Unstable(Some(st)) => format!("unstable at step {st}"),
             Outcome::Unstable(None) => "unstable".to_string(),
+            Outcome::Refused => "refused".to_string(),
         };
         s += &format!(
             "| {} | {out} | {} |\n",

@@ -32,6 +32,12 @@ pub struct SweepOptions {
     pub error: Option<String>,
     /// Output folder.
     pub out: PathBuf,
+    /// Record a combination the scene refuses (a value out of its range: a configuration error raised
+    /// when the run is set up) as a `refused` row instead of stopping the sweep (stability maps).
+    pub record_refused: bool,
+    /// Stop repeating a combination once a run took longer than this many seconds (long runs carry little
+    /// timing noise); absent: always `repeat` runs.
+    pub repeat_until_seconds: Option<f64>,
 }
 
 /// One combination.
@@ -39,7 +45,8 @@ pub struct SweepOptions {
 pub struct SweepRow {
     /// The varied values, in `--vary` order.
     pub values: Vec<String>,
-    /// `ok` or `unstable`.
+    /// `ok`, `unstable` or `refused` (the scene refused the values; only with
+    /// [`SweepOptions::record_refused`]).
     pub status: String,
     /// Steps run.
     pub steps: u64,
@@ -218,23 +225,47 @@ pub fn sweep(opts: &SweepOptions) -> Result<SweepReport> {
                         observables: BTreeMap::new(),
                     }
                 }
+                Err(Error::Config(msg)) if opts.record_refused => {
+                    eprintln!("sweep: {}: refused: {msg}", combo.join(" "));
+                    SweepRow {
+                        failed_step: None,
+                        message: Some(msg),
+                        values: combo.clone(),
+                        status: "refused".into(),
+                        steps: 0,
+                        wall_seconds: f64::NAN,
+                        core_seconds: f64::NAN,
+                        mlups: f64::NAN,
+                        observables: BTreeMap::new(),
+                    }
+                }
                 Err(e) => return Err(e),
             };
+            let long = opts
+                .repeat_until_seconds
+                .is_some_and(|t| row.wall_seconds.is_nan() || row.wall_seconds > t);
             let faster = best.as_ref().is_none_or(|b| row.wall_seconds < b.wall_seconds);
             if faster {
                 best = Some(row);
             }
+            if long {
+                break;
+            }
         }
         let row = best.expect("at least one repeat");
+        let took = match (row.failed_step, row.wall_seconds.is_finite()) {
+            (Some(st), _) => format!(" at step {st}"),
+            (None, true) => format!(" in {:.2} s", row.wall_seconds),
+            (None, false) => String::new(),
+        };
         eprintln!(
-            "sweep: {} -> {} in {:.2} s",
+            "sweep: {} -> {}{took}",
             keys.iter()
                 .zip(&row.values)
                 .map(|(k, v)| format!("{k}={v}"))
                 .collect::<Vec<_>>()
                 .join(" "),
             row.status,
-            row.wall_seconds
         );
         rows.push(row);
     }

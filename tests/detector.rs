@@ -86,3 +86,40 @@ fn unstable_settings_are_unstable_and_stable_ones_ok() {
     assert_eq!(s.status, "ok");
     std::fs::remove_dir_all(&out).ok();
 }
+
+/// A stability map keeps the three outcomes apart: the cavity at N = 8 is stable at Re = 100, blows up at
+/// Re = 10⁵ (τ − ½ = 2.4e-5) with the step named, and a lid speed the scene refuses (0.45 ≥ 0.4) is drawn
+/// `refused` instead of stopping the map.
+#[test]
+fn stress_map_tells_stable_unstable_and_refused_apart() {
+    use blockflow::io::plots_sweep::Outcome;
+    use blockflow::stress::{stress, StressOptions};
+    let out = std::env::temp_dir().join(format!("blockflow-stress-{}", std::process::id()));
+    let opts = StressOptions {
+        scene: std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/cavity.toml"),
+        vary: vec![
+            ("scene.reynolds".into(), vec!["100".into(), "100000".into()]),
+            ("scene.lid_velocity".into(), vec!["0.1".into(), "0.45".into()]),
+        ],
+        sets: vec!["scene.resolution=8".into()],
+        steps: Some(400),
+        out: out.clone(),
+        ..Default::default()
+    };
+    let r = stress(&opts).expect("map");
+    // Rows run the first key slowest: (100, 0.1), (100, 0.45), (1e5, 0.1), (1e5, 0.45).
+    assert_eq!(r.outcomes[0], Outcome::Stable);
+    assert_eq!(r.outcomes[1], Outcome::Refused);
+    assert!(
+        matches!(r.outcomes[2], Outcome::Unstable(Some(s)) if s <= 400),
+        "{:?}",
+        r.outcomes[2]
+    );
+    assert_eq!(r.outcomes[3], Outcome::Refused);
+    assert!(r.sweep.rows[1]
+        .message
+        .as_deref()
+        .is_some_and(|m| m.contains("lid_velocity")));
+    assert!(out.join("stress.png").exists() && out.join("stress.csv").exists());
+    std::fs::remove_dir_all(&out).ok();
+}

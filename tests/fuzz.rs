@@ -216,11 +216,18 @@ fn scene_keys(kind: &str) -> &'static [(&'static str, Ty)] {
         ],
         "settling_sphere" => &[
             ("resolution", F(3.0, 10.0)),
+            ("case", E(&["E1", "E2", "E3", "E4"])),
+            ("fluid_density", F(0.0, 2000.0)),
+            ("fluid_viscosity", F(0.0, 1.0)),
+            ("particle_density", F(0.0, 3000.0)),
             ("density_ratio", F(1.0, 5.0)),
+            ("diameter", F(0.0, 0.05)),
+            ("box", F3(0.0, 0.3)),
+            ("start_height", F(0.0, 0.2)),
+            ("gravity", F(0.0, 20.0)),
             ("galileo", F(0.0, 500.0)),
-            ("box_diameters", F3(2.0, 8.0)),
-            ("start_height", F(1.0, 9.0)),
-            ("steps", U(0, 5)),
+            ("mach", F(0.0, 0.5)),
+            ("duration", F(0.0, 2.0)),
         ],
         "hopper" => &[
             ("diameter", F(3.0, 10.0)),
@@ -1130,7 +1137,7 @@ fn overflowing_domains_are_refused() {
         ("taylor_green.toml", "scene.resolution=911993056309129300"),
         ("couette.toml", "scene.width=4294967296"),
         ("cavity.toml", "scene.resolution=2000000"),
-        ("settling_sphere.toml", "scene.box_diameters=[1e300,6,10]"),
+        ("settling_sphere.toml", "scene.box=[1e300,0.1,0.16]"),
     ] {
         refused(C(file), &["--steps", "2", "--set", key], &["cells", "between 1 and"]);
     }

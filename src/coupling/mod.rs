@@ -172,11 +172,25 @@ pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: 
 /// every static fluid cell a sphere covers (the higher id wins where two overlap), fluid segments, links
 /// with δ_q and the cells that turned from solid to fluid since the previous mapping.
 pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, mode: SurfaceBoundary) {
+    map_with(d, b, pc, bodies, mode, true)
+}
+
+/// [`map`] with its fast path for a block with no body near (before or now) switched on or off: with
+/// `fast_path = false` (`run.no_skip`) such a block is scanned cell by cell like any other, which gives
+/// the same overlay.
+pub fn map_with<T: Real>(
+    d: &DomainSpec,
+    b: &Block<T>,
+    pc: &mut ParticleCells,
+    bodies: Vec<MapBody>,
+    mode: SurfaceBoundary,
+    fast_path: bool,
+) {
     let l = b.layout;
     let [fx, fy, fz] = l.full();
     // Cells of the block with its ghost layer (element indices run below the field's stride).
     let n = l.sxy * fz;
-    if bodies.is_empty() && !pc.owned && pc.owner.len() == n {
+    if fast_path && bodies.is_empty() && !pc.owned && pc.owner.len() == n {
         // No body near before or now: the static cells are the state; nothing to rebuild or reconstruct.
         if pc.segments.len() != b.segments.len() || pc.fluid_cells != b.fluid_cells {
             pc.segments = b.segments.clone();

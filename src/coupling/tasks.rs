@@ -12,7 +12,7 @@
 //! force when `particles.force_averaging` is on: the hydrodynamic force is then held constant over the S
 //! rigid-body sub-steps that follow (Algorithm 1).
 
-use super::{map, BodyForce, MapBody, ParticleCells, SurfaceBoundary};
+use super::{map_with, BodyForce, MapBody, ParticleCells, SurfaceBoundary};
 use crate::block::Block;
 use crate::domain::DomainSpec;
 use crate::particles::Particles;
@@ -64,14 +64,25 @@ pub fn bodies_near<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64) -> Ve
     out
 }
 
-/// Task `map(b, t)`: maps the bodies as they are after `steps` steps.
+/// Task `map(b, t)`: maps the bodies as they are after `steps` steps (with `no_skip`, a block with no
+/// body near is scanned like any other instead of taking the mapping's fast path).
 ///
 /// # Safety
 /// No other task may access b's overlay concurrently (see the module table).
-pub unsafe fn map_task<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, mode: SurfaceBoundary) {
+pub unsafe fn map_task<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, mode: SurfaceBoundary, no_skip: bool) {
     let bodies = bodies_near(parts, blk, steps);
     let pc: &mut ParticleCells = blk.particle_cells_mut();
-    map(parts.domain(), blk, pc, bodies, mode);
+    map_with(parts.domain(), blk, pc, bodies, mode, !no_skip);
+}
+
+/// Task `map(b, t)` of a block without fluid (only with `run.no_skip`): maps the bodies near it into a
+/// scratch overlay, cell by cell, and drops it. The block keeps having no overlay (a block without
+/// fluid never has one; block serialisation relies on that), so nothing changes.
+pub fn map_scratch<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, mode: SurfaceBoundary) {
+    let bodies = bodies_near(parts, blk, steps);
+    let mut pc = ParticleCells::default();
+    map_with(parts.domain(), blk, &mut pc, bodies, mode, false);
+    std::hint::black_box(&pc);
 }
 
 /// Task `forces(b, t)`: the hydrodynamic force and torque of every body b published after `steps` steps,
@@ -113,7 +124,7 @@ pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: us
 pub fn map_all<T: Real>(parts: &Particles, blocks: &[Block<T>], steps: u64, mode: SurfaceBoundary) {
     for blk in blocks.iter().filter(|b| b.fluid_cells > 0) {
         // SAFETY: set-up, nothing runs concurrently.
-        unsafe { map_task(parts, blk, steps, mode) };
+        unsafe { map_task(parts, blk, steps, mode, false) };
     }
 }
 

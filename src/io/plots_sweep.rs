@@ -91,6 +91,8 @@ pub enum Outcome {
     Inaccurate,
     /// Stopped by the detector at this step (None: step unknown).
     Unstable(Option<u64>),
+    /// Not run: the scene refused the values (e.g. τ below ½ or a Mach number past its limit).
+    Refused,
 }
 
 /// Size of the stability map in pixels.
@@ -139,12 +141,14 @@ pub fn stability_map(
         let green = RGBColor(0, 158, 115);
         let amber = RGBColor(230, 159, 0);
         let red = RGBColor(213, 94, 0);
+        let grey = RGBColor(170, 170, 170);
         for (j, row) in cells.iter().enumerate() {
             for (i, o) in row.iter().enumerate() {
                 let col = match o {
                     Outcome::Stable => green,
                     Outcome::Inaccurate => amber,
                     Outcome::Unstable(_) => red,
+                    Outcome::Refused => grey,
                 };
                 let (a, b) = ((i as f64, j as f64), (i as f64 + 1.0, j as f64 + 1.0));
                 c.draw_series(std::iter::once(Rectangle::new([a, b], col.filled())))?;
@@ -157,9 +161,14 @@ pub fn stability_map(
             }
         }
         legend.draw(&Text::new("outcome", (12, 60), bold(18.0)))?;
-        for (k, (name, col)) in [("stable", green), ("inaccurate", amber), ("unstable (step)", red)]
-            .into_iter()
-            .enumerate()
+        for (k, (name, col)) in [
+            ("stable", green),
+            ("inaccurate", amber),
+            ("unstable (step)", red),
+            ("refused", grey),
+        ]
+        .into_iter()
+        .enumerate()
         {
             let y = 100 + 34 * k as i32;
             legend.draw(&Rectangle::new([(12, y - 10), (40, y + 10)], col.filled()))?;

@@ -125,6 +125,9 @@ pub struct Summary {
     pub restart_step: Option<u64>,
     /// Scene kind.
     pub scene: String,
+    /// Lattice spacing (m), time step (s) and fluid density (kg/m³) of a scene given in SI units.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<crate::scenes::Units>,
     /// One line on the physical set-up.
     pub description: String,
     /// Steps completed.
@@ -163,6 +166,20 @@ pub struct Summary {
     pub observables: BTreeMap<String, f64>,
     /// Skip-rule bookkeeping.
     pub work: WorkSummary,
+    /// Whether the run ran every task on every block (`run.no_skip`, measurement only).
+    pub no_skip: bool,
+    /// Tasks executed over the run, per kind (`send`, `comm`, `boundary`, `sweep`, `map`, ...).
+    pub tasks_by_kind: BTreeMap<String, u64>,
+    /// With `run.no_skip`: the work done only because the skip rules were off, per rule (`outside`,
+    /// `no_boundary`, `no_particles`, `static_map`: tasks; `fused_kernel`: sweeps on the general path).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unskipped_by_rule: Option<BTreeMap<String, u64>>,
+    /// CPU seconds of the tasks per kind over the run.
+    pub tasks_cpu_seconds_by_kind: BTreeMap<String, f64>,
+    /// With `run.no_skip`: CPU seconds of the work in `unskipped_by_rule`, per rule (`fused_kernel`: the
+    /// general-path sweeps of the fluid blocks, whole).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unskipped_cpu_seconds_by_rule: Option<BTreeMap<String, f64>>,
     /// Pinned core of each worker thread (absent: not pinned).
     pub cores: Vec<Option<usize>>,
     /// Assignment and imbalance.

@@ -7,7 +7,9 @@ use super::*;
 /// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
 /// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps. Edges as documented in
-/// [`crate::particles::tasks`] and [`crate::coupling::tasks`].
+/// [`crate::particles::tasks`] and [`crate::coupling::tasks`]. With `no_skip` every block counts as
+/// active and gets `map`/`reconstruct` even without fluid.
+#[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
 pub(super) fn add_particle_tasks<T: Real>(
     g: &mut GraphBuilder,
     parts: &Particles,
@@ -16,10 +18,11 @@ pub(super) fn add_particle_tasks<T: Real>(
     k: usize,
     fluid: &[Ids],
     coupled: bool,
+    no_skip: bool,
 ) {
     let nb = parts.blocks.len();
     let s = parts.subcycles;
-    let active: Vec<usize> = (0..nb).filter(|&b| parts.active[b]).collect();
+    let active: Vec<usize> = (0..nb).filter(|&b| no_skip || parts.active[b]).collect();
     let spec = |b: usize, part: u8, payload: u32| TaskSpec {
         owner: owners[b],
         part,
@@ -40,7 +43,7 @@ pub(super) fn add_particle_tasks<T: Real>(
         let mut forces: Vec<Option<TaskId>> = vec![None; nb];
         if coupled {
             let mut maps: Vec<Option<TaskId>> = vec![None; nb];
-            for &b in active.iter().filter(|&&b| blocks[b].fluid_cells > 0) {
+            for &b in active.iter().filter(|&&b| no_skip || blocks[b].fluid_cells > 0) {
                 let m = g.add(spec(b, PART_MAP, payload(kk, KIND_MAP)));
                 let r = g.add(spec(b, PART_RECON, payload(kk, KIND_RECON)));
                 g.edge(m, r);
@@ -117,7 +120,9 @@ pub(super) struct Ids {
     pub(super) sweep: Option<TaskId>,
 }
 
-/// Adds the fluid tasks of `k` consecutive steps (see the module docs for tasks and edges).
+/// Adds the fluid tasks of `k` consecutive steps (see the module docs for tasks and edges). With
+/// `no_skip` every block gets `comm`, `boundary` and `sweep` tasks, with or without fluid, ghost regions
+/// or links (`send` stays where a message crosses processes: without one there is nothing to send).
 pub(super) fn add_fluid_tasks<T: Real>(
     g: &mut GraphBuilder,
     blocks: &[Block<T>],
@@ -125,6 +130,7 @@ pub(super) fn add_fluid_tasks<T: Real>(
     outgoing: &[Vec<Outgoing>],
     k: usize,
     force_boundary: &[bool],
+    no_skip: bool,
 ) -> Vec<Ids> {
     let nb = blocks.len();
     let mut ids = vec![Ids::default(); nb * k];
@@ -134,7 +140,7 @@ pub(super) fn add_fluid_tasks<T: Real>(
     for s in 0..k {
         for b in blocks
             .iter()
-            .filter(|b| b.fluid_cells > 0 && !outgoing[b.id].is_empty())
+            .filter(|b| (no_skip || b.fluid_cells > 0) && !outgoing[b.id].is_empty())
         {
             ids[s * nb + b.id].send = Some(g.add(TaskSpec {
                 owner: owners[b.id],
@@ -143,7 +149,7 @@ pub(super) fn add_fluid_tasks<T: Real>(
                 payload: payload(s, KIND_SEND),
             }));
         }
-        for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
+        for b in blocks.iter().filter(|b| no_skip || b.fluid_cells > 0) {
             let owner = owners[b.id];
             let mk = |g: &mut GraphBuilder, part: u8, kind: u32| {
                 g.add(TaskSpec {
@@ -154,10 +160,10 @@ pub(super) fn add_fluid_tasks<T: Real>(
                 })
             };
             let id = &mut ids[s * nb + b.id];
-            if !b.recv.is_empty() {
+            if no_skip || !b.recv.is_empty() {
                 id.comm = Some(mk(g, PART_EXCHANGE, KIND_COMM));
             }
-            if !b.links.is_empty() || force_boundary[b.id] {
+            if no_skip || !b.links.is_empty() || force_boundary[b.id] {
                 id.boundary = Some(mk(g, PART_BOUNDARY, KIND_BOUNDARY));
             }
             id.sweep = Some(mk(g, PART_LBM, KIND_SWEEP));
@@ -166,7 +172,7 @@ pub(super) fn add_fluid_tasks<T: Real>(
     let compute = |i: &Ids| i.boundary.or(i.sweep).expect("fluid block has a sweep");
     let first = |i: &Ids| i.comm.or(i.boundary).or(i.sweep).expect("fluid block has a sweep");
     for s in 0..k {
-        for b in blocks.iter().filter(|b| b.fluid_cells > 0) {
+        for b in blocks.iter().filter(|b| no_skip || b.fluid_cells > 0) {
             let me = ids[s * nb + b.id];
             let sweep = me.sweep.expect("sweep");
             // own chain
@@ -208,4 +214,37 @@ pub(super) fn add_fluid_tasks<T: Real>(
         }
     }
     ids
+}
+
+/// `run.no_skip` only: a `static_map(b, s)` task per block and step that re-derives the block's static
+/// geometry (flags, runs, links) and checks it against the one mapped at set-up. It reads only data no
+/// task writes, so it needs no edge for safety; it is placed inside its step (after the block's sweep of
+/// step s-1, before its first fluid task of step s) so that it is timed where a re-mapping would run.
+pub(super) fn add_static_map_tasks<T: Real>(
+    g: &mut GraphBuilder,
+    blocks: &[Block<T>],
+    owners: &[u32],
+    k: usize,
+    fluid: &[Ids],
+) {
+    let nb = blocks.len();
+    for s in 0..k {
+        for b in blocks {
+            let t = g.add(TaskSpec {
+                owner: owners[b.id],
+                part: PART_MAP,
+                block: b.id as u32,
+                payload: payload(s, KIND_STATIC),
+            });
+            let f = &fluid[s * nb + b.id];
+            if let Some(first) = f.comm.or(f.boundary).or(f.sweep) {
+                g.edge(t, first);
+            }
+            if s > 0 {
+                if let Some(sw) = fluid[(s - 1) * nb + b.id].sweep {
+                    g.edge(sw, t);
+                }
+            }
+        }
+    }
 }

@@ -12,6 +12,25 @@
 //! | `comm(b,s)` | senders' field[p] layers (same process) or slots (other process) | b.field[p] ghost cells |
 //! | `boundary(b,s)` (only with links) | b.field[p] fluid cells | b.field[p] wall cells |
 //! | `sweep(b,s)` | b.field[p] | b.field[1-p] fluid cells |
+//! | `static_map(b,s)` (only with `run.no_skip`) | the scene geometry, b's flags and links | nothing |
+//!
+//! Skip rules (DESIGN.md principle 2) and what `run.no_skip` (measurement only; the results stay bitwise
+//! the same) does instead, by [`SKIP_RULES`] name:
+//! - `outside`: a block without fluid gets no task, a block without a ghost region to receive no `comm`.
+//!   No-skip: every block gets `comm`, `boundary` and `sweep` (and, with moving bodies, `map` and
+//!   `reconstruct`); they visit the block's cells and find nothing to do cell by cell.
+//! - `no_boundary`: a block without links (and without particle links) gets no `boundary` task.
+//!   No-skip: every block gets one; it scans every interior cell for near-boundary cells, then applies
+//!   the (possibly empty) links.
+//! - `no_particles`: only blocks that a body can reach get `map`, `reconstruct`, `forces`, `rb` and
+//!   `rb_sync` tasks, and `map` takes a fast path on a block with no body near. No-skip: every block gets
+//!   all of them every step and `map` scans every block. (A scene without moving bodies has none: n/a.)
+//! - `static_map`: walls and planes are classified into flags and links once, at set-up. No-skip: a
+//!   `static_map` task re-derives them for every block every step and checks them against the stored ones.
+//!   (Fixed bodies, mapped once at set-up, are not re-mapped.)
+//! - `fused_kernel`: the sweep runs the configured kernel (`fluid.kernel`, fused by default: on every
+//!   block, not only obstacle-free ones) over the fluid runs mapped once. No-skip: the general path,
+//!   runs found by scanning every cell's flag and the split kernels (stream, then collide).
 //!
 //! Edges (every conflicting pair of accesses is ordered):
 //! - chain `comm(b,s) → boundary(b,s) → sweep(b,s) → first(b,s+1)`, and `sweep(b,s-1) → send(b,s)`;
@@ -39,7 +58,7 @@ use blockflow_scheduler::executor::Executor;
 use blockflow_scheduler::replay::load_imbalance;
 use blockflow_scheduler::trace::TraceWriter;
 use blockflow_scheduler::{GraphBuilder, TaskGraph, TaskId, TaskRecord, TaskSpec};
-use graph::{add_fluid_tasks, add_particle_tasks};
+use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks};
 use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -63,6 +82,41 @@ const KIND_RB_SYNC: u32 = 5;
 const KIND_MAP: u32 = 6;
 const KIND_RECON: u32 = 7;
 const KIND_FORCES: u32 = 8;
+const KIND_STATIC: u32 = 9;
+
+/// Task kind names, indexed by the kind bits of a task's payload.
+pub const TASK_KINDS: [&str; 10] = [
+    "send",
+    "comm",
+    "boundary",
+    "sweep",
+    "rb",
+    "rb_sync",
+    "map",
+    "reconstruct",
+    "forces",
+    "static_map",
+];
+
+/// The skip rules of DESIGN.md principle 2 that `run.no_skip` switches off (see the module docs):
+/// outside blocks, blocks without boundary cells, blocks without particles, static geometry mapped once,
+/// and the fused kernel.
+pub const SKIP_RULES: [&str; 5] = ["outside", "no_boundary", "no_particles", "static_map", "fused_kernel"];
+const RULE_OUTSIDE: usize = 0;
+const RULE_NO_BOUNDARY: usize = 1;
+const RULE_NO_PARTICLES: usize = 2;
+const RULE_STATIC: usize = 3;
+const RULE_FUSED: usize = 4;
+const NO_RULE: u8 = u8::MAX;
+
+/// Task counts of one compiled graph.
+#[derive(Clone, Debug, Default)]
+struct GraphCounts {
+    by_kind: [u64; 10],
+    by_rule: [u64; 5],
+    /// The rule each task is owed to (index into [`SKIP_RULES`]; `NO_RULE`: it runs with the rules on).
+    rule_of: Vec<u8>,
+}
 
 /// Task payload: bits 0–3 the kind, 4–11 the rigid-body sub-step inside the step, 12– the step inside
 /// the graph run.
@@ -137,6 +191,18 @@ pub struct PipelineTotals {
     pub remote_messages: u64,
     /// Ghost regions copied directly inside a process.
     pub local_copies: u64,
+    /// Tasks executed per kind (index as [`TASK_KINDS`]).
+    pub tasks_by_kind: [u64; 10],
+    /// With `run.no_skip`: the work done only because a skip rule was off, per rule (index as
+    /// [`SKIP_RULES`]): tasks that would not exist (`outside`, `no_boundary`, `no_particles`,
+    /// `static_map`) and sweeps that took the general path instead of the fused kernel (`fused_kernel`).
+    /// Zero without `run.no_skip`.
+    pub unskipped: [u64; 5],
+    /// CPU seconds per task kind (index as [`TASK_KINDS`]).
+    pub cpu_by_kind: [f64; 10],
+    /// With `run.no_skip`: CPU seconds of the work counted in `unskipped`, per rule (for `fused_kernel`
+    /// the whole general-path sweeps of the fluid blocks, to be compared with the fused sweeps' time).
+    pub unskipped_cpu: [f64; 5],
 }
 
 /// Runs a [`Simulation`] through the task graph.
@@ -146,6 +212,10 @@ pub struct Pipeline<T: Real> {
     steal_global: bool,
     max_k: usize,
     graphs: HashMap<usize, TaskGraph>,
+    counts: HashMap<usize, GraphCounts>,
+    /// Run every task on every block (`run.no_skip`, for measurement only): see the module docs. Set
+    /// before the first step.
+    pub no_skip: bool,
     outgoing: Vec<Vec<Outgoing>>,
     /// Slot index per (block, recv index) when the sender is remote.
     slot_of: Vec<Vec<Option<usize>>>,
@@ -191,6 +261,8 @@ impl<T: Real> Pipeline<T> {
             steal_global,
             max_k: max_k.max(1),
             graphs: HashMap::new(),
+            counts: HashMap::new(),
+            no_skip: false,
             outgoing,
             slot_of,
             slots: (0..nslots).map(|_| Mutex::new(Vec::new())).collect(),
@@ -255,6 +327,7 @@ impl<T: Real> Pipeline<T> {
         self.slots = (0..nslots).map(|_| Mutex::new(Vec::new())).collect();
         self.owners = owners;
         self.graphs.clear();
+        self.counts.clear();
         (moved.len(), bytes)
     }
 
@@ -318,6 +391,8 @@ impl<T: Real> Pipeline<T> {
     fn graph(&mut self, sim: &Simulation<T>, k: usize) -> &TaskGraph {
         let owners = &self.owners;
         let outgoing = &self.outgoing;
+        let no_skip = self.no_skip;
+        let counts = &mut self.counts;
         self.graphs.entry(k).or_insert_with(|| {
             let mut g = GraphBuilder::new();
             let coupled = sim.particles.is_some() && sim.blocks.iter().any(|b| b.particle_cells().is_some());
@@ -333,11 +408,16 @@ impl<T: Real> Pipeline<T> {
                             || b.particle_cells().is_some_and(|pc| !pc.links.is_empty()))
                 })
                 .collect();
-            let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary);
+            let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
             if let (Some(parts), true) = (&sim.particles, moving) {
-                add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled);
+                add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled, no_skip);
             }
-            g.build().expect("the step graph is acyclic")
+            if no_skip {
+                add_static_map_tasks(&mut g, &sim.blocks, owners, k, &fluid);
+            }
+            let graph = g.build().expect("the step graph is acyclic");
+            counts.insert(k, count_tasks(sim, &graph, &force_boundary, no_skip));
+            graph
         })
     }
 
@@ -355,6 +435,7 @@ impl<T: Real> Pipeline<T> {
                 let bodies = parts.bodies(step);
                 if parts.update_active(k as u64, &bodies) {
                     self.graphs.clear();
+                    self.counts.clear();
                 }
             }
             self.run_graph(sim, k).map_err(Error::Unstable)?;
@@ -458,6 +539,8 @@ impl<T: Real> Pipeline<T> {
         let surface = self.surface;
         let force_averaging = self.force_averaging;
         let domain = sim.domain;
+        let sim_geometry = &sim.geometry;
+        let no_skip = self.no_skip;
         let t0 = Instant::now();
         let run = self.exec.run(&graph, |_t: TaskId, spec: &TaskSpec, _w| {
             let b = &blocks[spec.block as usize];
@@ -479,8 +562,13 @@ impl<T: Real> Pipeline<T> {
                 }
                 KIND_MAP => {
                     let parts = parts.expect("map tasks only exist with particles");
-                    // SAFETY: the graph carries the edges of `coupling::tasks`.
-                    unsafe { coupling::tasks::map_task(parts, b, base + kk as u64, surface) }
+                    if b.fluid_cells == 0 {
+                        // `run.no_skip` only: a block without fluid never gets an overlay.
+                        coupling::tasks::map_scratch(parts, b, base + kk as u64, surface)
+                    } else {
+                        // SAFETY: the graph carries the edges of `coupling::tasks`.
+                        unsafe { coupling::tasks::map_task(parts, b, base + kk as u64, surface, no_skip) }
+                    }
                 }
                 KIND_RECON => {
                     // SAFETY: as above; reconstruct writes b's field p before anyone reads it this step.
@@ -510,8 +598,13 @@ impl<T: Real> Pipeline<T> {
                         }
                     }
                 }
+                KIND_STATIC => b.check_static_geometry(&domain, sim_geometry),
                 KIND_BOUNDARY => {
-                    fluid::boundary(b, p);
+                    if no_skip {
+                        fluid::boundary_general(b, p);
+                    } else {
+                        fluid::boundary(b, p);
+                    }
                     if b.particle_cells().is_some() {
                         // SAFETY: the boundary task is the only user of b's overlay and particle cells now.
                         unsafe { coupling::boundary(b, b.particle_cells_mut(), p) }
@@ -520,7 +613,13 @@ impl<T: Real> Pipeline<T> {
                 _ => {
                     // SAFETY: the graph orders every task touching field 1 - p of this block or writing
                     // field p around this sweep (module docs).
-                    let st = unsafe { fluid::stream_collide(b, p, &params, kernel) };
+                    let st = unsafe {
+                        if no_skip {
+                            fluid::stream_collide_general(b, p, &params)
+                        } else {
+                            fluid::stream_collide(b, p, &params, kernel)
+                        }
+                    };
                     *stats[kk * blocks.len() + b.id].lock().expect("stats") = st;
                 }
             }
@@ -567,9 +666,14 @@ impl<T: Real> Pipeline<T> {
             bt.clear();
             bt.resize(k * nb, [0; 6]);
         }
-        for (spec, r) in graph.specs().iter().zip(records) {
+        let rule_of = self.counts.get(&k).map(|c| c.rule_of.as_slice()).unwrap_or(&[]);
+        for (i, (spec, r)) in graph.specs().iter().zip(records).enumerate() {
             let cpu = r.cpu_ns as f64 * 1e-9;
             self.totals.part_cpu[spec.part as usize] += cpu;
+            self.totals.cpu_by_kind[(spec.payload & 15) as usize] += cpu;
+            if let Some(&rule) = rule_of.get(i).filter(|&&x| x != NO_RULE) {
+                self.totals.unskipped_cpu[rule as usize] += cpu;
+            }
             if let Some(bt) = self.block_times.as_mut() {
                 let nb = sim.blocks.len();
                 bt[step_of(spec.payload) * nb + spec.block as usize][spec.part as usize] += r.cpu_ns;
@@ -580,6 +684,14 @@ impl<T: Real> Pipeline<T> {
             durations.push(r.cpu_ns);
         }
         self.totals.tasks += records.len() as u64;
+        if let Some(c) = self.counts.get(&k) {
+            for (t, n) in self.totals.tasks_by_kind.iter_mut().zip(c.by_kind) {
+                *t += n;
+            }
+            for (t, n) in self.totals.unskipped.iter_mut().zip(c.by_rule) {
+                *t += n;
+            }
+        }
         let times = crate::study::model::model_run(
             graph,
             &durations,
@@ -611,6 +723,40 @@ impl<T: Real> Pipeline<T> {
         self.totals.local_copies += local * k as u64;
         self.current.message_bytes += bytes * k as u64;
     }
+}
+
+/// Counts the tasks of a compiled graph per kind and, with `no_skip`, the work per skip rule that is
+/// done only because the rule is off (classified from the same block state the graph was built from).
+fn count_tasks<T: Real>(sim: &Simulation<T>, graph: &TaskGraph, force_boundary: &[bool], no_skip: bool) -> GraphCounts {
+    let mut c = GraphCounts {
+        rule_of: vec![NO_RULE; graph.len()],
+        ..Default::default()
+    };
+    let active = |b: usize| sim.particles.as_ref().is_some_and(|p| p.active[b]);
+    for (i, spec) in graph.specs().iter().enumerate() {
+        let kind = (spec.payload & 15) as usize;
+        c.by_kind[kind] += 1;
+        if !no_skip {
+            continue;
+        }
+        let blk = &sim.blocks[spec.block as usize];
+        let outside = blk.fluid_cells == 0;
+        let rule = match kind as u32 {
+            KIND_COMM | KIND_BOUNDARY | KIND_SWEEP if outside => Some(RULE_OUTSIDE),
+            KIND_COMM if blk.recv.is_empty() => Some(RULE_OUTSIDE),
+            KIND_BOUNDARY if blk.links.is_empty() && !force_boundary[blk.id] => Some(RULE_NO_BOUNDARY),
+            KIND_SWEEP if sim.kernel == KernelChoice::Fused => Some(RULE_FUSED),
+            KIND_MAP | KIND_RECON | KIND_FORCES | KIND_RB | KIND_RB_SYNC if !active(blk.id) => Some(RULE_NO_PARTICLES),
+            KIND_MAP | KIND_RECON if outside => Some(RULE_OUTSIDE),
+            KIND_STATIC => Some(RULE_STATIC),
+            _ => None,
+        };
+        if let Some(r) = rule {
+            c.by_rule[r] += 1;
+            c.rule_of[i] = r as u8;
+        }
+    }
+    c
 }
 
 /// The task kinds the modeled times need: which tasks receive ghost regions and the bytes of every

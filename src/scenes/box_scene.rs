@@ -166,6 +166,7 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         init: Box::new(move |_| (0.0, u)),
         observe: Box::new(|v| BTreeMap::from([("kinetic_energy".to_string(), kinetic_energy(v))])),
         particles,
+        units: None,
         description: format!(
             "box with {} planes and {} spheres, tau = {tau}",
             s.planes.len(),

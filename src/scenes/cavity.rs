@@ -124,6 +124,7 @@ pub(super) fn build(s: &CavityConfig, cfg: &Config) -> Result<Scene> {
             ])
         }),
         particles: None,
+        units: None,
         description: format!(
             "lid-driven cavity N = {n}, Re = {}, U = {u}, tau = {tau:.5}",
             s.reynolds

@@ -73,6 +73,7 @@ pub(super) fn build(s: &ChannelConfig, cfg: &Config) -> Result<Scene> {
         init: Box::new(|_| (0.0, [0.0; 3])),
         observe: Box::new(move |v| BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])),
         particles: None,
+        units: None,
         description: format!(
             "Poiseuille channel H = {h}, Re = {}, u_max = {u_max:.4}, tau = {tau}",
             s.reynolds

@@ -71,6 +71,7 @@ pub(super) fn build(s: &CouetteConfig, cfg: &Config) -> Result<Scene> {
         init: Box::new(|_| (0.0, [0.0; 3])),
         observe: Box::new(move |v| BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])),
         particles: None,
+        units: None,
         description: format!("Couette gap H = {h}, Re = {}, U = {u_wall:.4}, tau = {tau}", s.reynolds),
     })
 }

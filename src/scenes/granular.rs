@@ -164,6 +164,7 @@ fn dry_scene(name: &'static str, cells: [usize; 3], blocks: [usize; 3], steps: u
         init: Box::new(|_| (0.0, [0.0; 3])),
         observe: Box::new(|_| BTreeMap::new()),
         particles: None,
+        units: None,
         description: String::new(),
     }
 }

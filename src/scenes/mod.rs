@@ -8,6 +8,7 @@ mod channel;
 mod couette;
 mod granular;
 mod particulate;
+mod settling;
 mod taylor_green;
 
 use crate::config::{Config, DomainConfig};
@@ -24,7 +25,8 @@ pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
 pub use couette::CouetteConfig;
 pub use granular::{CollisionConfig, GranularBoxConfig, InclineConfig};
-pub use particulate::{CalibrationConfig, DragArrayConfig, HopperConfig, SettlingSphereConfig};
+pub use particulate::{CalibrationConfig, DragArrayConfig, HopperConfig};
+pub use settling::{schiller_naumann_reynolds, SettlingSphereConfig, TenCateCase, TEN_CATE};
 pub use taylor_green::TaylorGreenConfig;
 
 /// `[scene]`: which scene (`kind`) and its parameters.
@@ -142,8 +144,23 @@ pub struct Scene {
     pub observe: ObserveFn,
     /// Rigid bodies, if the scene has any.
     pub particles: Option<ParticleScene>,
+    /// Physical units of a scene given in SI units (absent: lattice units throughout).
+    pub units: Option<Units>,
     /// One line on the physical set-up, for logs and summary.json.
     pub description: String,
+}
+
+/// The lattice spacing, time step and fluid density of a scene set up in SI units: a lattice length is
+/// `dx` m, a lattice time `dt` s, a lattice velocity `dx / dt` m/s and a lattice force
+/// `density dx⁴ / dt²` N.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Units {
+    /// Lattice spacing, m.
+    pub dx: f64,
+    /// Time step, s.
+    pub dt: f64,
+    /// Fluid density, kg/m³ (lattice density 1).
+    pub density: f64,
 }
 
 /// The scene kinds, for messages.
@@ -204,7 +221,7 @@ pub fn build(cfg: &Config) -> Result<Scene> {
         SceneConfig::Incline(s) => granular::build_incline(s, cfg),
         SceneConfig::Collision(s) => granular::build_collision(s, cfg),
         SceneConfig::DragArray(s) => particulate::build_drag_array(s, cfg),
-        SceneConfig::SettlingSphere(s) => particulate::build_settling_sphere(s, cfg),
+        SceneConfig::SettlingSphere(s) => settling::build(s, cfg),
         SceneConfig::Hopper(s) => particulate::build_hopper(s, cfg),
         SceneConfig::Calibration(s) => particulate::build_calibration(s, cfg),
     }

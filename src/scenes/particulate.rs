@@ -133,6 +133,7 @@ pub(super) fn build_drag_array(s: &DragArrayConfig, cfg: &Config) -> Result<Scen
             restitution_threshold: 1e-4,
             dt: 1.0,
         }),
+        units: None,
         description: format!(
             "simple cubic array: sphere of D = {:.3} in a periodic {l}^3 cube, solid fraction {phi}, tau = {tau}",
             2.0 * a
@@ -140,143 +141,16 @@ pub(super) fn build_drag_array(s: &DragArrayConfig, cfg: &Config) -> Result<Scen
     })
 }
 
-/// `[scene]` keys of `kind = "settling_sphere"`: one sphere settling from rest in a closed box of fluid
-/// at rest (the ten Cate et al. 2002 set-up in lattice units).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct SettlingSphereConfig {
-    /// Sphere diameter D in cells.
-    #[serde(default = "d_settle_res")]
-    pub resolution: f64,
-    /// Density ratio ρp / ρf (> 1).
-    #[serde(default = "d_density_ratio")]
-    pub density_ratio: f64,
-    /// Galileo number Ga = sqrt((ρp/ρf − 1) g D³) / ν; sets the gravity.
-    #[serde(default = "d_galileo")]
-    pub galileo: f64,
-    /// Box size in diameters (closed walls).
-    #[serde(default = "d_box")]
-    pub box_diameters: [f64; 3],
-    /// Start height of the centre above the bottom, in diameters.
-    #[serde(default = "d_start")]
-    pub start_height: f64,
-    /// Steps; absent: long enough to fall to the bottom at the estimated terminal speed.
-    pub steps: Option<u64>,
-}
-
-fn d_settle_res() -> f64 {
-    8.0
-}
 fn d_density_ratio() -> f64 {
     1.5
 }
 fn d_galileo() -> f64 {
     30.0
 }
-fn d_box() -> [f64; 3] {
-    [6.0, 6.0, 10.0]
-}
-fn d_start() -> f64 {
-    8.0
-}
-
-/// Closed-box walls as fluid geometry are the domain faces; the rigid planes mirror them.
-fn closed_box(cells: [usize; 3]) -> (Geometry, Vec<blockflow_kernels::rigid::Plane>) {
-    (Geometry::default(), super::wall_planes(cells, [false; 3]))
-}
 
 /// Gravity magnitude from the Galileo number: g = Ga² ν² / ((ρr − 1) D³).
 fn gravity_from_galileo(ga: f64, nu: f64, ratio: f64, d: f64) -> f64 {
     ga * ga * nu * nu / ((ratio - 1.0) * d.powi(3))
-}
-
-pub(super) fn build_settling_sphere(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
-    check(
-        "resolution",
-        s.resolution,
-        s.resolution >= 3.0,
-        "must be at least 3 cells",
-    )?;
-    check(
-        "density_ratio",
-        s.density_ratio,
-        s.density_ratio > 1.0,
-        "must be > 1 (the sphere must sink)",
-    )?;
-    check(
-        "galileo",
-        s.galileo,
-        s.galileo > 0.0 && s.galileo <= 500.0,
-        "must be in (0, 500]",
-    )?;
-    for (k, v) in s.box_diameters.iter().enumerate() {
-        check(
-            &format!("box_diameters[{k}]"),
-            *v,
-            *v >= 2.0,
-            "must be at least 2 diameters",
-        )?;
-    }
-    check(
-        "start_height",
-        s.start_height,
-        s.start_height >= 1.0 && s.start_height <= s.box_diameters[2] - 1.0,
-        "must leave one diameter to the bottom and to the top",
-    )?;
-    let d = s.resolution;
-    let cells: [usize; 3] = std::array::from_fn(|a| (s.box_diameters[a] * d).round() as usize);
-    let tau = cfg.fluid.tau.unwrap_or(0.55);
-    let nu = (tau - 0.5) / 3.0;
-    let g = gravity_from_galileo(s.galileo, nu, s.density_ratio, d);
-    let centre = DVec3::new(cells[0] as f64 / 2.0, cells[1] as f64 / 2.0, s.start_height * d);
-    let body = Body::sphere(0, centre, d / 2.0, s.density_ratio);
-    // Terminal speed estimate from a drag balance with C_d = 24/Re (1 + 0.15 Re^0.687) (Schiller–Naumann).
-    let mut re = s.galileo * s.galileo / 18.0;
-    for _ in 0..50 {
-        re = s.galileo * s.galileo / (18.0 * (1.0 + 0.15 * re.powf(0.687)));
-    }
-    let u_est = re * nu / d;
-    let fall = (s.start_height - 0.5) * d;
-    let steps = s.steps.unwrap_or((1.5 * fall / u_est.max(1e-6)).ceil() as u64 + 200);
-    let (geometry, planes) = closed_box(cells);
-    let observe = Box::new(move |v: &dyn super::FluidView| {
-        let traj = v.trajectory();
-        let peak = traj.iter().map(|(_, b)| -b.velocity.z).fold(0.0, f64::max);
-        let last = v.bodies();
-        let z = last.first().map_or(0.0, |b| b.position.z);
-        BTreeMap::from([
-            ("terminal_velocity".to_string(), peak),
-            ("reynolds".to_string(), peak * d / nu),
-            ("reynolds_estimate".to_string(), re),
-            ("final_height".to_string(), z / d),
-        ])
-    });
-    Ok(Scene {
-        name: "settling_sphere",
-        cells: Some(cells),
-        periodic: [false; 3],
-        default_blocks: [1, 1, 1],
-        geometry,
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
-        steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
-        observe,
-        particles: Some(ParticleScene {
-            bodies: vec![body],
-            planes,
-            gravity: [0.0, 0.0, -g],
-            restitution_threshold: 1e-3,
-            dt: 1.0,
-        }),
-        description: format!(
-            "sphere of D = {d} cells, rho_p/rho_f = {}, Ga = {}, settling in a closed {cells:?}-cell box, tau = {tau}",
-            s.density_ratio, s.galileo
-        ),
-    })
 }
 
 /// `[scene]` keys of `kind = "hopper"` (section 4.3): spheres densely packed under the lid settle through
@@ -457,6 +331,7 @@ pub(super) fn build_hopper(s: &HopperConfig, cfg: &Config) -> Result<Scene> {
             restitution_threshold: 1e-3,
             dt: 1.0,
         }),
+        units: None,
         description: format!(
             "hopper: {} spheres of D = {d}, Ga = {}, rho_p/rho_f = {}, {:?} cells, cross-section narrowed by {}",
             s.count, s.galileo, s.density_ratio, cells, s.narrowing
@@ -667,6 +542,7 @@ pub(super) fn build_calibration(s: &CalibrationConfig, cfg: &Config) -> Result<S
             restitution_threshold: 1e-3,
             dt: 1.0,
         }),
+        units: None,
         description: format!(
             "calibration (section 3.3): {count} spheres of D = {d}, solid fraction {}, Ga = {}, rho_p/rho_f = {}, \
              {cells:?} cells with the top wall at z = {lz:.1}, tau = {tau:.4}",

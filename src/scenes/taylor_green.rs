@@ -87,6 +87,7 @@ pub(super) fn build(s: &TaylorGreenConfig, cfg: &Config) -> Result<Scene> {
             ])
         }),
         particles: None,
+        units: None,
         description: format!(
             "Taylor-Green N = {n}, Re = {}, U0 = {u0:.4}, tau = {tau}, {steps} steps",
             s.reynolds

@@ -1,0 +1,528 @@
+//! One sphere settling from rest in a closed box of viscous fluid, given in physical (SI) units: the
+//! experiment of ten Cate, Nieuwstad, Derksen and Van den Akker, "Particle imaging velocimetry experiments
+//! and lattice-Boltzmann simulations on a single sphere settling under gravity", Phys. Fluids 14, 4012
+//! (2002), doi:10.1063/1.1512918.
+//!
+//! Units. `scene.resolution` cells per diameter fix the lattice spacing dx = D / resolution. The lattice
+//! time step dt comes from one of two rules:
+//! - `fluid.tau` given: **τ wins**, dt = (τ − ½)/3 · dx² / ν (diffusive scaling; the Mach number then
+//!   follows and is checked against [`MAX_MACH`]);
+//! - `fluid.tau` absent: the **Mach limit**, dt = Ma · c_s · dx / u_est with Ma = `scene.mach` (default
+//!   0.1), c_s = 1/√3 and u_est the terminal speed in an unbounded fluid from the Schiller–Naumann drag
+//!   law (an a-priori estimate; the box walls make the real speed a few per cent lower). τ then follows as
+//!   ½ + 3 ν dt / dx² (acoustic scaling: τ grows with the resolution at a fixed Mach number).
+//!
+//! In lattice units ρ_f = 1, the sphere has ρ_p / ρ_f, gravity g dt² / dx, viscosity ν dt / dx². Forces
+//! convert back with ρ_f dx⁴ / dt², velocities with dx / dt.
+
+use super::{check, check_extent, wall_planes, ParticleScene, Scene, Units};
+use crate::config::Config;
+use crate::error::{config_err, Result};
+use crate::geometry::Geometry;
+use blockflow_kernels::rigid::Body;
+use blockflow_kernels::TrtParams;
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// One case of ten Cate et al. (2002): the silicone oil and the measured peak settling speed.
+#[derive(Clone, Copy, Debug)]
+pub struct TenCateCase {
+    /// Case name, `E1` … `E4`.
+    pub name: &'static str,
+    /// Fluid density ρ_f, kg/m³ (their Table 1).
+    pub fluid_density: f64,
+    /// Dynamic viscosity μ_f, Pa s (their Table 1).
+    pub fluid_viscosity: f64,
+    /// Terminal speed in an unbounded fluid u_∞, m/s (their Table 1).
+    pub u_infinity: f64,
+    /// Measured peak settling speed in the box over u_∞ (their Table 2).
+    pub peak_over_infinity: f64,
+    /// Reynolds number ρ_f u_∞ D / μ_f (their Table 1).
+    pub reynolds: f64,
+}
+
+impl TenCateCase {
+    /// The measured peak settling speed in the box, m/s (Table 2 ratio × Table 1 u_∞).
+    pub fn peak_speed(&self) -> f64 {
+        self.peak_over_infinity * self.u_infinity
+    }
+}
+
+/// The four cases of ten Cate et al. (2002): a nylon sphere (D = 15 mm, ρ_p = 1120 kg/m³) in four silicone
+/// oils, container 100 × 100 × 160 mm.
+pub const TEN_CATE: [TenCateCase; 4] = [
+    TenCateCase {
+        name: "E1",
+        fluid_density: 970.0,
+        fluid_viscosity: 0.373,
+        u_infinity: 0.038,
+        peak_over_infinity: 0.947,
+        reynolds: 1.5,
+    },
+    TenCateCase {
+        name: "E2",
+        fluid_density: 965.0,
+        fluid_viscosity: 0.212,
+        u_infinity: 0.060,
+        peak_over_infinity: 0.953,
+        reynolds: 4.1,
+    },
+    TenCateCase {
+        name: "E3",
+        fluid_density: 962.0,
+        fluid_viscosity: 0.113,
+        u_infinity: 0.091,
+        peak_over_infinity: 0.959,
+        reynolds: 11.6,
+    },
+    TenCateCase {
+        name: "E4",
+        fluid_density: 960.0,
+        fluid_viscosity: 0.058,
+        u_infinity: 0.128,
+        peak_over_infinity: 0.955,
+        reynolds: 31.9,
+    },
+];
+
+/// The experiment's sphere diameter, m.
+pub const TEN_CATE_DIAMETER: f64 = 0.015;
+/// The experiment's sphere density, kg/m³.
+pub const TEN_CATE_PARTICLE_DENSITY: f64 = 1120.0;
+/// The experiment's container (x, y, z), m.
+pub const TEN_CATE_BOX: [f64; 3] = [0.1, 0.1, 0.16];
+/// Start height of the centre above the bottom, m: the experiment's plotted trajectories begin with a gap
+/// of about 120 mm under the sphere.
+pub const TEN_CATE_START: f64 = 0.1275;
+
+/// Largest Mach number (estimated terminal speed over c_s) a set-up may reach.
+pub const MAX_MACH: f64 = 0.5;
+
+/// `[scene]` keys of `kind = "settling_sphere"`, in SI units.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SettlingSphereConfig {
+    /// Cells per sphere diameter.
+    #[serde(default = "d_res")]
+    pub resolution: f64,
+    /// A case of ten Cate et al. (2002), `"E1"` … `"E4"`: sets `fluid_density` and `fluid_viscosity` where
+    /// they are not given, and the measured peak speed the run is compared with (reported only while the
+    /// set-up is the experiment's: fluid, sphere, box and gravity).
+    pub case: Option<String>,
+    /// Fluid density ρ_f, kg/m³.
+    pub fluid_density: Option<f64>,
+    /// Dynamic viscosity μ_f, Pa s.
+    pub fluid_viscosity: Option<f64>,
+    /// Sphere density ρ_p, kg/m³ (default: the experiment's 1120).
+    pub particle_density: Option<f64>,
+    /// Density ratio ρ_p / ρ_f instead of `particle_density` (for stress maps down to 1).
+    pub density_ratio: Option<f64>,
+    /// Sphere diameter D, m.
+    #[serde(default = "d_diameter")]
+    pub diameter: f64,
+    /// Closed box [L_x, L_y, L_z], m.
+    #[serde(default = "d_box")]
+    pub r#box: [f64; 3],
+    /// Start height of the sphere centre above the bottom, m (centred in x and y).
+    #[serde(default = "d_start")]
+    pub start_height: f64,
+    /// Gravitational acceleration, m/s² (default 9.81).
+    pub gravity: Option<f64>,
+    /// Galileo number Ga = √((ρ_p/ρ_f − 1) g D³) / ν instead of `gravity` (sets g).
+    pub galileo: Option<f64>,
+    /// Mach number of the estimated terminal speed, which sets dt when `fluid.tau` is absent.
+    #[serde(default = "d_mach")]
+    pub mach: f64,
+    /// Simulated time, s; absent: long enough to reach the bottom at the estimated speed.
+    pub duration: Option<f64>,
+}
+
+fn d_res() -> f64 {
+    8.0
+}
+fn d_diameter() -> f64 {
+    TEN_CATE_DIAMETER
+}
+fn d_box() -> [f64; 3] {
+    TEN_CATE_BOX
+}
+fn d_start() -> f64 {
+    TEN_CATE_START
+}
+fn d_mach() -> f64 {
+    0.1
+}
+
+/// Reynolds number of the terminal speed in an unbounded fluid from the Galileo number, by the
+/// Schiller–Naumann drag law C_d = 24/Re (1 + 0.15 Re^0.687): Re (1 + 0.15 Re^0.687) = Ga² / 18.
+pub fn schiller_naumann_reynolds(galileo: f64) -> f64 {
+    let rhs = galileo * galileo / 18.0;
+    // f(Re) is increasing; bisection on [0, rhs] is robust for every Ga.
+    let (mut lo, mut hi) = (0.0, rhs.max(1e-300));
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if mid * (1.0 + 0.15 * mid.powf(0.687)) < rhs {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The physical set-up after the defaults and the case are applied.
+#[derive(Clone, Copy, Debug)]
+struct Physical {
+    rho_f: f64,
+    mu: f64,
+    rho_p: f64,
+    d: f64,
+    g: f64,
+}
+
+fn physical(s: &SettlingSphereConfig) -> Result<(Physical, Option<TenCateCase>)> {
+    let case = match &s.case {
+        None => None,
+        Some(name) => match TEN_CATE.iter().find(|c| c.name.eq_ignore_ascii_case(name)) {
+            Some(c) => Some(*c),
+            None => return config_err(format!("scene.case = {name:?}: unknown case; one of E1, E2, E3, E4")),
+        },
+    };
+    let rho_f = match (s.fluid_density, case) {
+        (Some(v), _) => v,
+        (None, Some(c)) => c.fluid_density,
+        (None, None) => {
+            return config_err("scene.fluid_density: missing; give it (kg/m³) or scene.case = \"E1\" … \"E4\"")
+        }
+    };
+    let mu = match (s.fluid_viscosity, case) {
+        (Some(v), _) => v,
+        (None, Some(c)) => c.fluid_viscosity,
+        (None, None) => {
+            return config_err(
+                "scene.fluid_viscosity: missing; give it (dynamic, Pa s) or scene.case = \"E1\" … \"E4\"",
+            )
+        }
+    };
+    check(
+        "fluid_density",
+        rho_f,
+        rho_f > 0.0 && rho_f <= 1e5,
+        "must be a density in (0, 1e5] kg/m³",
+    )?;
+    check(
+        "fluid_viscosity",
+        mu,
+        mu > 0.0 && mu <= 1e6,
+        "must be a dynamic viscosity in (0, 1e6] Pa s",
+    )?;
+    let rho_p = match (s.particle_density, s.density_ratio) {
+        (Some(_), Some(_)) => {
+            return config_err("scene.particle_density and scene.density_ratio are both given; keep one of them")
+        }
+        (Some(v), None) => {
+            check(
+                "particle_density",
+                v,
+                v > 0.0 && v <= 1e6,
+                "must be a density in (0, 1e6] kg/m³",
+            )?;
+            v
+        }
+        (None, Some(r)) => {
+            check("density_ratio", r, r > 0.0 && r <= 1e3, "must be in (0, 1000]")?;
+            r * rho_f
+        }
+        (None, None) => TEN_CATE_PARTICLE_DENSITY,
+    };
+    if rho_p <= rho_f {
+        return config_err(format!(
+            "scene.particle_density = {rho_p} kg/m³ is not above scene.fluid_density = {rho_f} kg/m³ (density ratio \
+             {:.6}): the sphere would not sink; give a denser sphere or a ratio above 1",
+            rho_p / rho_f
+        ));
+    }
+    let d = s.diameter;
+    check("diameter", d, d > 0.0 && d <= 1e3, "must be a diameter in (0, 1000] m")?;
+    let nu = mu / rho_f;
+    let g = match (s.gravity, s.galileo) {
+        (Some(_), Some(_)) => return config_err("scene.gravity and scene.galileo are both given; keep one of them"),
+        (Some(g), None) => {
+            check("gravity", g, g > 0.0 && g <= 1e4, "must be in (0, 1e4] m/s²")?;
+            g
+        }
+        (None, Some(ga)) => {
+            check("galileo", ga, ga > 0.0 && ga <= 1000.0, "must be in (0, 1000]")?;
+            ga * ga * nu * nu / ((rho_p / rho_f - 1.0) * d.powi(3))
+        }
+        (None, None) => 9.81,
+    };
+    let p = Physical { rho_f, mu, rho_p, d, g };
+    // The measured peak speed applies only to the experiment's own set-up.
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs();
+    let reference = case.filter(|c| {
+        same(rho_f, c.fluid_density)
+            && same(mu, c.fluid_viscosity)
+            && same(rho_p, TEN_CATE_PARTICLE_DENSITY)
+            && same(d, TEN_CATE_DIAMETER)
+            && same(g, 9.81)
+            && (0..3).all(|a| same(s.r#box[a], TEN_CATE_BOX[a]))
+    });
+    Ok((p, reference))
+}
+
+/// The peak settling speed (lattice units) and its time from body-0 samples (time, body): the largest fall
+/// speed averaged over the time the sphere takes to fall one lattice cell, Δz / Δt over the shortest window
+/// ending at a sample with Δz ≥ 1. The raw velocity carries a few per cent of noise at coarse resolutions
+/// as the sphere crosses cells (cells covered and uncovered); the one-cell average removes that noise
+/// without smoothing the physical curve, which changes over many cells.
+pub fn peak_settling_speed(traj: &[(f64, Body)]) -> (f64, f64) {
+    let (mut peak, mut t_peak) = (0.0, 0.0);
+    let mut j = 0;
+    for i in 0..traj.len() {
+        let (ti, zi) = (traj[i].0, traj[i].1.position.z);
+        // Advance j to the latest sample at least one cell above sample i.
+        while j + 1 < i && traj[j + 1].1.position.z - zi >= 1.0 {
+            j += 1;
+        }
+        let (tj, zj) = (traj[j].0, traj[j].1.position.z);
+        if j < i && zj - zi >= 1.0 && ti > tj {
+            let u = (zj - zi) / (ti - tj);
+            if u > peak {
+                peak = u;
+                t_peak = 0.5 * (ti + tj);
+            }
+        }
+    }
+    (peak, t_peak)
+}
+
+/// Blocks along an axis of `n` cells: the divisor of `n` whose block edge (at least 8 cells) is closest to
+/// `target` cells, fewer blocks on a tie.
+fn blocks_along(n: usize, target: i64) -> usize {
+    (1..=n)
+        .filter(|k| n.is_multiple_of(*k) && (n / k >= 8 || *k == 1))
+        .min_by_key(|k| ((n / k) as i64 - target).abs())
+        .unwrap_or(1)
+}
+
+/// The default block grid (`domain.blocks` or `domain.block_size` override it): x, the kernel's inner
+/// loop, is never split (long rows run fastest: at D = 12 on 2 cores, 80 × 80 × 16 blocks give 34.6
+/// MLUPS, 20 × 20 × 32 blocks 19.2); z is cut into slabs of about 16 cells, and y into blocks of about 24
+/// only when z gives fewer than 4 slabs.
+fn default_blocks(cells: [usize; 3]) -> [usize; 3] {
+    let bz = blocks_along(cells[2], 16);
+    let by = if bz < 4 { blocks_along(cells[1], 24) } else { 1 };
+    [1, by, bz]
+}
+
+pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
+    check(
+        "resolution",
+        s.resolution,
+        (3.0..=512.0).contains(&s.resolution),
+        "must be between 3 and 512 cells per diameter",
+    )?;
+    check(
+        "mach",
+        s.mach,
+        s.mach > 0.0 && s.mach <= MAX_MACH,
+        &format!("must be in (0, {MAX_MACH}]"),
+    )?;
+    let (p, reference) = physical(s)?;
+    let d = p.d;
+    for (a, &l) in s.r#box.iter().enumerate() {
+        check(
+            &format!("box[{a}]"),
+            l,
+            l >= 1.5 * d,
+            &format!("must be at least 1.5 sphere diameters ({} m)", 1.5 * d),
+        )?;
+    }
+    let dx = d / s.resolution;
+    let cells: [usize; 3] = std::array::from_fn(|a| (s.r#box[a] / dx).round().min(1e12) as usize);
+    check_extent(cells, "scene.box and scene.resolution")?;
+    let h = s.start_height;
+    check(
+        "start_height",
+        h,
+        h >= 0.5 * d + dx && h <= cells[2] as f64 * dx - 0.5 * d - dx,
+        &format!(
+            "must keep the sphere a cell off the bottom and the lid: between {:.6} and {:.6} m",
+            0.5 * d + dx,
+            cells[2] as f64 * dx - 0.5 * d - dx
+        ),
+    )?;
+    let nu = p.mu / p.rho_f;
+    let ratio = p.rho_p / p.rho_f;
+    let galileo = ((ratio - 1.0) * p.g * d.powi(3)).sqrt() / nu;
+    let re_est = schiller_naumann_reynolds(galileo);
+    let u_est = re_est * nu / d;
+    let cs = 1.0 / 3f64.sqrt();
+    let (dt, tau) = match cfg.fluid.tau {
+        Some(tau) => ((tau - 0.5) / 3.0 * dx * dx / nu, tau),
+        None => {
+            let dt = s.mach * cs * dx / u_est;
+            (dt, 0.5 + 3.0 * nu * dt / (dx * dx))
+        }
+    };
+    let mach_est = u_est * dt / dx / cs;
+    if !(tau - 0.5 >= 1e-4 && tau <= 50.0) {
+        return config_err(format!(
+            "scene.mach = {} at scene.resolution = {} gives tau = {tau:.6}, outside [0.5001, 50]; {}",
+            s.mach,
+            s.resolution,
+            if tau < 0.5001 {
+                "raise scene.mach or lower scene.resolution"
+            } else {
+                "lower scene.mach or give fluid.tau"
+            }
+        ));
+    }
+    if cfg.fluid.tau.is_some() && mach_est > MAX_MACH {
+        return config_err(format!(
+            "fluid.tau = {tau} gives an estimated terminal Mach number of {mach_est:.3} (above {MAX_MACH}); lower \
+             fluid.tau, or leave it out and set scene.mach"
+        ));
+    }
+    let g_lat = p.g * dt * dt / dx;
+    let d_lat = s.resolution;
+    let centre = DVec3::new(cells[0] as f64 / 2.0, cells[1] as f64 / 2.0, h / dx);
+    let body = Body::sphere(0, centre, d_lat / 2.0, ratio);
+    let duration = match s.duration {
+        Some(t) => {
+            check("duration", t, t > 0.0 && t <= 1e6, "must be a time in (0, 1e6] s")?;
+            t
+        }
+        // Down to the bottom at 70 % of the unbounded estimate (walls and the bottom slow the sphere).
+        None => (h - 0.5 * d) / (0.7 * u_est),
+    };
+    let steps_f = (duration / dt).ceil();
+    if steps_f > 1e9 {
+        return config_err(format!(
+            "scene.duration = {duration} s is {steps_f:.3e} lattice steps of {dt:.3e} s; shorten it or coarsen \
+             scene.resolution"
+        ));
+    }
+    let steps = (steps_f as u64).max(1);
+    let planes = wall_planes(cells, [false; 3]);
+    let case_name = s.case.clone();
+    let observe = Box::new(move |v: &dyn super::FluidView| {
+        let traj = v.trajectory();
+        let (peak, t_peak) = peak_settling_speed(&traj);
+        let raw = traj.iter().map(|(_, b)| -b.velocity.z).fold(0.0, f64::max);
+        let z = v.bodies().first().map_or(0.0, |b| b.position.z);
+        let u = peak * dx / dt;
+        let mut o = BTreeMap::from([
+            ("terminal_velocity".to_string(), u),
+            ("time_of_peak".to_string(), t_peak * dt),
+            ("reynolds".to_string(), u * d / nu),
+            ("galileo".to_string(), galileo),
+            ("density_ratio".to_string(), ratio),
+            ("stokes".to_string(), ratio * u * d / nu / 9.0),
+            ("reynolds_estimate".to_string(), re_est),
+            ("peak_mach".to_string(), raw / cs),
+            ("peak_velocity_raw".to_string(), raw * dx / dt),
+            ("final_gap".to_string(), z * dx - 0.5 * d),
+            ("dx".to_string(), dx),
+            ("dt".to_string(), dt),
+        ]);
+        if let Some(c) = reference {
+            let r = c.peak_speed();
+            o.insert("reference_velocity".to_string(), r);
+            o.insert("relative_error".to_string(), (u - r).abs() / r);
+        }
+        o
+    });
+    Ok(Scene {
+        name: "settling_sphere",
+        cells: Some(cells),
+        periodic: [false; 3],
+        default_blocks: default_blocks(cells),
+        geometry: Geometry::default(),
+        params: TrtParams {
+            tau,
+            magic: cfg.fluid.magic,
+            force: [0.0; 3],
+        },
+        steps,
+        init: Box::new(|_| (0.0, [0.0; 3])),
+        observe,
+        particles: Some(ParticleScene {
+            bodies: vec![body],
+            planes,
+            gravity: [0.0, 0.0, -g_lat],
+            restitution_threshold: 1e-3,
+            dt: 1.0,
+        }),
+        units: Some(Units {
+            dx,
+            dt,
+            density: p.rho_f,
+        }),
+        description: format!(
+            "sphere D = {d} m ({} cells), rho_p = {} kg/m3 in rho_f = {} kg/m3, mu = {} Pa s{} (Ga = {galileo:.2}), \
+             closed {:?} m box ({cells:?} cells), dx = {dx:.4e} m, dt = {dt:.4e} s, tau = {tau:.5}",
+            s.resolution,
+            p.rho_p,
+            p.rho_f,
+            p.mu,
+            case_name.map_or(String::new(), |c| format!(" (ten Cate {c})")),
+            s.r#box
+        ),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The Schiller–Naumann Reynolds number solves its defining equation, and tends to Stokes' Ga²/18.
+    #[test]
+    fn schiller_naumann_solves_its_equation() {
+        for ga in [0.1, 1.0, 10.0, 38.88, 300.0] {
+            let re = schiller_naumann_reynolds(ga);
+            let lhs = re * (1.0 + 0.15 * re.powf(0.687));
+            assert!((lhs - ga * ga / 18.0).abs() <= 1e-12 * ga * ga, "Ga {ga}: Re {re}");
+        }
+        let re = schiller_naumann_reynolds(1e-3);
+        assert!((re - 1e-6 / 18.0).abs() < 1e-3 * re);
+    }
+
+    fn body_at(z: f64) -> Body {
+        Body::sphere(0, DVec3::new(0.0, 0.0, z), 1.0, 2.0)
+    }
+
+    /// A fall at constant speed gives that speed; noise of period shorter than one cell averages out.
+    #[test]
+    fn peak_speed_averages_over_one_cell() {
+        // z(t) = 100 - 0.05 t + 0.2 sin(2π t / 4): the wiggle has a period of 4 steps (0.2 cells).
+        let traj: Vec<(f64, Body)> = (0..2000)
+            .map(|t| {
+                let t = t as f64;
+                (
+                    t,
+                    body_at(100.0 - 0.05 * t + 0.002 * (std::f64::consts::TAU * t / 4.0).sin()),
+                )
+            })
+            .collect();
+        let (u, _) = peak_settling_speed(&traj);
+        assert!((u - 0.05).abs() < 0.002 / 20.0 * 4.0 + 1e-12, "{u}");
+        let steady: Vec<(f64, Body)> = (0..100).map(|t| (t as f64, body_at(50.0 - 0.1 * t as f64))).collect();
+        assert!((peak_settling_speed(&steady).0 - 0.1).abs() < 1e-12);
+    }
+
+    /// Block counts divide the axis and aim at the target edge; x is never split.
+    #[test]
+    fn blocks_divide_the_axis() {
+        assert_eq!(blocks_along(53, 24), 1);
+        assert_eq!(blocks_along(85, 16), 5);
+        assert_eq!(blocks_along(80, 24), 4);
+        assert_eq!(blocks_along(128, 16), 8);
+        assert_eq!(blocks_along(5, 16), 1);
+        assert_eq!(default_blocks([80, 80, 128]), [1, 1, 8]);
+        assert_eq!(default_blocks([53, 53, 85]), [1, 1, 5]);
+        assert_eq!(default_blocks([133, 133, 213]), [1, 7, 3]);
+    }
+}
