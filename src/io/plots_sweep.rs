@@ -26,10 +26,14 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
     if xs.is_empty() {
         return Err(Error::Config(format!("{}: {title}: no data to plot", path.display())));
     }
+    // Widened to whole decades, so that a log axis over a narrow range still shows labelled ticks.
     let span = |v: &[f64]| {
         let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = v.iter().copied().fold(0.0, f64::max);
-        (lo / 1.5, hi * 1.5)
+        (
+            (lo / 1.5).min(10f64.powf(lo.log10().floor())),
+            (hi * 1.5).max(10f64.powf(hi.log10().ceil())),
+        )
     };
     let (x0, x1) = span(&xs);
     let (y0, y1) = span(&ys);
@@ -47,8 +51,10 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
             .y_desc(y_desc)
             .label_style(font(17.0))
             .axis_desc_style(font(19.0))
-            .x_label_formatter(&|v: &f64| format!("{v:.2e}"))
-            .y_label_formatter(&|v: &f64| format!("{v:.1e}"))
+            .x_labels(8)
+            .y_labels(8)
+            .x_label_formatter(&|v: &f64| short(*v))
+            .y_label_formatter(&|v: &f64| short(*v))
             .light_line_style(WHITE)
             .bold_line_style(GRID)
             .draw()?;
@@ -64,9 +70,27 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
     })
 }
 
+/// A short tick label: plain digits between 0.01 and 10⁴, else `1e-5` style.
+fn short(v: f64) -> String {
+    if (0.01..1e4).contains(&v.abs()) {
+        let s = format!("{v:.3}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        format!("{v:.0e}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn short_labels() {
+        assert_eq!(short(20.0), "20");
+        assert_eq!(short(0.05), "0.05");
+        assert_eq!(short(1e-5), "1e-5");
+        assert_eq!(short(2e5), "2e5");
+    }
 
     #[test]
     fn writes_a_png_and_refuses_empty_input() {
