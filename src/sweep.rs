@@ -307,9 +307,17 @@ pub fn sweep(opts: &SweepOptions) -> Result<SweepReport> {
         if let Some(o) = order {
             orders.push((label.clone(), o));
         }
+        // The legend names each key by its last part and drops TOML quotes, so that labels fit.
+        let short = keys[1..]
+            .iter()
+            .zip(v)
+            .map(|(k, x)| format!("{}={}", k.rsplit('.').next().unwrap_or(k), x.trim_matches('"')))
+            .collect::<Vec<_>>()
+            .join(" ");
+        let short = if short.is_empty() { label } else { short };
         let label = match order {
-            Some(o) => format!("{label} (order {o:.2})"),
-            None => label,
+            Some(o) => format!("{short} (order {o:.2})"),
+            None => short,
         };
         lines.push((
             label,

@@ -30,9 +30,10 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
     let span = |v: &[f64]| {
         let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
         let hi = v.iter().copied().fold(0.0, f64::max);
+        // (a little past the decades, so that their ticks and labels are inside the plot)
         (
-            (lo / 1.5).min(10f64.powf(lo.log10().floor())),
-            (hi * 1.5).max(10f64.powf(hi.log10().ceil())),
+            (lo / 1.5).min(10f64.powf(lo.log10().floor())) / 1.05,
+            (hi * 1.5).max(10f64.powf(hi.log10().ceil())) * 1.05,
         )
     };
     let (x0, x1) = span(&xs);
