@@ -1,12 +1,13 @@
 //! Criterion benchmarks of the load distribution strategies (`cargo bench --bench balance`).
 //!
-//! The cases are [`blockflow::balance::strategy::SCALE_CASES`] (the same as `scale_table`): Hilbert keys
+//! The cases are [`blockflow::app::bench::balance::SCALE_CASES`] (the same as `scale_table`): Hilbert keys
 //! plus the greedy and the optimal split for 100 000 blocks (50 × 50 × 40) on 32 processes, and one
 //! diffusive balancing step and one METIS k-way partition (with relabelling) of 288 blocks (6 × 6 × 8) on
 //! 32 processes. Block weights are uniform in [0.5, 1.5) with a fixed seed; the current owners are the
 //! Hilbert split of uniform weights.
 
-use blockflow::balance::strategy::{bench_case, by_name, SCALE_CASES};
+use blockflow::app::bench::balance::{bench_case, SCALE_CASES};
+use blockflow::balance::by_name;
 use blockflow::config::BalanceConfig;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use std::hint::black_box;

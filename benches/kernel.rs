@@ -6,7 +6,7 @@
 //! its throughput is in cells, so criterion's Melem/s are MLUPS. The workers and their blocks persist
 //! across samples; allocation, first touch and warm-up steps are not timed.
 
-use blockflow::bench_kernel::{alloc_copy_pair, copy_nt, copy_plain, l3_bytes, with_fused_workers, HAS_NT};
+use blockflow::app::bench::kernel::{alloc_copy_pair, copy_nt, copy_plain, l3_bytes, with_fused_workers, HAS_NT};
 use blockflow_kernels::Real;
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, SamplingMode, Throughput};
 use std::time::Duration;

@@ -1,14 +1,14 @@
 //! Criterion benchmarks of the rigid-body sub-step and of contact detection.
 //!
 //! `cargo bench --bench rigid`. The packings are those of `blockflow bench rigid`
-//! ([`blockflow::bench_rigid::packing`]: equal spheres of diameter 1 on a jittered simple-cubic lattice
+//! ([`blockflow::app::bench::rigid::packing`]: equal spheres of diameter 1 on a jittered simple-cubic lattice
 //! squeezed by 1 % in a box of six planes, ~5 contacts per sphere). The "substep" group times one
 //! `substep` with the grid (`RigidParams::default()` otherwise, gravity on) for N = 1000 and 10 000;
 //! its throughput is in spheres, so criterion's elem/s are spheres per second. Every sample starts from a
 //! fresh copy of the packing (copying is not timed). The "detect" group times all pairs against the grid at
 //! N = 64, around the default `RigidParams::grid_threshold`.
 
-use blockflow::bench_rigid::{packing, DT};
+use blockflow::app::bench::rigid::{packing, DT};
 use blockflow_kernels::rigid::{detect_all_pairs, detect_grid, substep, RigidParams};
 use criterion::{criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion, Throughput};
 use std::hint::black_box;

@@ -79,11 +79,7 @@ impl fmt::Display for Error {
                 step,
                 checkpoint,
             } => {
-                write!(
-                    f,
-                    "interrupted by {} at step {step}",
-                    crate::checkpoint::signal_name(*signal)
-                )?;
+                write!(f, "interrupted by {} at step {step}", signal_name(*signal))?;
                 match checkpoint {
                     Some(c) => write!(
                         f,
@@ -109,6 +105,15 @@ impl Error {
             Error::Checkpoint(_) => 4,
             Error::Interrupted { signal, .. } => 128 + signal,
         }
+    }
+}
+
+/// Name of a signal number for messages (`SIGINT`, `SIGTERM`, else `signal N`).
+pub fn signal_name(sig: i32) -> String {
+    match sig {
+        libc::SIGINT => "SIGINT".into(),
+        libc::SIGTERM => "SIGTERM".into(),
+        s => format!("signal {s}"),
     }
 }
 

@@ -1,35 +1,36 @@
 //! blockflow: geometrically resolved particulate flow on blocks.
 //!
 //! The library joins the per-block numerics of `blockflow-kernels` with the scheduling of
-//! `blockflow-scheduler`: configuration ([`config`]), the block domain and its geometry ([`domain`],
-//! [`geometry`], [`block`]), the per-block stages of a time step ([`fluid`]), the time loop ([`sim`]),
-//! scenes ([`scenes`]), output ([`io`]) and the command line ([`cli`]).
+//! `blockflow-scheduler`, in layers that import only downwards (the folder tree shows them):
+//!
+//! 1. vocabulary: [`util`] (hashing, atomic files, byte codecs, statistics), [`error`], [`config`];
+//! 2. state and scenes: [`physics`] (domain, geometry, blocks, fluid stages, rigid bodies, coupling, the
+//!    simulation), [`scenes`] (what each scene builds and observes);
+//! 3. mechanics and models: [`pipeline`] (the time step as a task graph), [`metrics`] (loads, edge cut,
+//!    modeled time, intervals), [`estimator`] (the workload model of section 3), [`balance`] (strategies
+//!    and the balancing step of section 4), [`serialise`] (the one block format), [`io`] (outputs);
+//! 4. a run: [`timeloop`] (the time loop that owns simulation, pipeline, balancer and observers),
+//!    [`study`] (the counterfactual replay of section 4.3), [`checkpoint`];
+//! 5. [`app`]: the commands; nothing imports it.
+
+#![warn(missing_docs)]
+
+pub mod config;
+pub mod error;
+pub mod util;
+
+pub mod physics;
+pub mod scenes;
 
 pub mod balance;
-pub mod bench_accuracy;
-pub mod bench_kernel;
-pub mod bench_rigid;
-pub mod bench_scheduler;
-pub mod bench_skip;
-pub mod block;
-pub mod calibrate;
-pub mod checkpoint;
-pub mod cli;
-pub mod config;
-pub mod coupling;
-pub mod domain;
-pub mod error;
 pub mod estimator;
-pub mod fluid;
-pub mod geometry;
 pub mod io;
-pub mod particles;
+pub mod metrics;
 pub mod pipeline;
-pub mod run_setup;
-pub mod runner;
-pub mod scenes;
 pub mod serialise;
-pub mod sim;
-pub mod stress;
+
+pub mod checkpoint;
 pub mod study;
-pub mod sweep;
+pub mod timeloop;
+
+pub mod app;

@@ -6,11 +6,11 @@ fn main() {
     // The allowed cores are read once here, on the un-pinned main thread (core_affinity reports the
     // calling thread's mask).
     blockflow_scheduler::topology::init_allowed_cores();
-    let cli = match blockflow::cli::Cli::try_parse() {
+    let cli = match blockflow::app::cli::Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => usage_error(e),
     };
-    if let Err(e) = blockflow::cli::execute(cli) {
+    if let Err(e) = blockflow::app::execute(cli) {
         eprintln!("error: {e}");
         std::process::exit(e.exit_code());
     }

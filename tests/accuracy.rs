@@ -1,9 +1,9 @@
-//! `blockflow bench accuracy --quick` (issue #9 point 1) as the CI runs it: the sweep machinery on the
+//! `blockflow bench accuracy --quick` as the CI runs it: the sweep machinery on the
 //! built-in suite, checked against known facts. Run with `cargo test --release --test accuracy`.
 
 mod common;
 
-use blockflow::bench_accuracy;
+use blockflow::app::bench::accuracy as bench_accuracy;
 use common::tmp;
 
 #[test]
@@ -12,7 +12,7 @@ fn quick_accuracy_suite_meets_the_known_facts() {
     let configs = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs");
     let cases = bench_accuracy::run(true, &out, &configs).unwrap();
     let case = |n: &str| &cases.iter().find(|c| c.name == n).unwrap().report;
-    let err = |r: &blockflow::sweep::SweepReport, vals: &[&str]| {
+    let err = |r: &blockflow::app::scan::ScanReport, vals: &[&str]| {
         let row = r.rows.iter().find(|x| x.values == vals).unwrap();
         assert_eq!(row.status, "ok", "{vals:?}");
         row.observables[r.error.as_ref().unwrap()]

@@ -1,51 +1,46 @@
-//! Dynamic load balancing (issue #8): every strategy keeps the result bitwise, blocks really move, the
+//! Dynamic load balancing: every strategy keeps the result bitwise, blocks really move, the
 //! counterfactual replay of the live strategy reproduces the live run's load imbalance series exactly,
 //! and a test-sized `blockflow study` writes its table and figures.
 //! Run with `cargo test --release --test balancing`.
 
 mod common;
 
-use blockflow::config::Config;
-use blockflow::runner;
-use blockflow::sim::Simulation;
-use blockflow::study::run::{study, StudyOptions};
-use common::{cfg, sim64, tmp};
+use blockflow::app::study::{study, StudyOptions};
+use blockflow::balance::Balancer;
+use blockflow::metrics::cost_model::Machine;
+use blockflow::study::{Candidate, Counterfactual};
+use blockflow::timeloop::setup::{coefficients, InitialAssignment};
+use common::{cfg, timeloop_of, tmp};
 
-/// Runs hopper-small with `sets` through `runner::make_pipeline` (the path of `blockflow run`), with a
-/// counterfactual of the run's own strategy attached; returns the checksums, the live LI series, the
-/// replayed LI series and the blocks moved.
+/// Runs hopper-small with `sets` through the time loop of `blockflow run`, with a counterfactual of the
+/// run's own strategy attached; returns the checksums, the live LI series, the replayed LI series and the
+/// blocks moved.
 fn live(sets: &[&str], steps: u64) -> ((u64, u64), Vec<f64>, Vec<f64>, u64) {
-    let c: Config = cfg("hopper-small.toml", sets);
-    let mut sim: Simulation<f64> = sim64("hopper-small.toml", sets);
-    let mut pipe = runner::make_pipeline(&c, &sim).unwrap();
+    let c = cfg("hopper-small.toml", sets);
+    let mut tl = timeloop_of(&c);
     let name = format!("{:?}", c.balance.strategy).to_lowercase();
-    let owners = runner::assignment_weighted(&c, &sim).unwrap();
-    let weights = runner::block_weights(&c, &sim).unwrap();
-    pipe.study = Some(blockflow::study::Counterfactual {
-        strategies: vec![blockflow::study::Strategy::new(
-            &name,
-            runner::make_balancer(&c, &sim).unwrap(),
-            false,
-            owners,
-            &weights,
-            c.processes.count,
-        )],
+    let coeffs = coefficients(&c).unwrap();
+    let init = InitialAssignment::of(&c, tl.sim(), coeffs.as_ref());
+    let machine = Machine {
         processes: c.processes.count,
         threads: c.processes.threads_per_process,
+        global: false,
         comm: Default::default(),
+    };
+    let balancer = Balancer::of(&c.balance, c.processes.count, coeffs, &tl.sim().domain);
+    let cf = tl.add_observer(Counterfactual {
+        candidates: vec![Candidate::new(&name, balancer, init.owners, &init.weights, machine)],
     });
-    pipe.advance(&mut sim, steps).expect("stable");
-    pipe.close_interval(&sim);
-    let cf = pipe.study.take().unwrap();
-    let li: Vec<f64> = pipe.intervals.iter().map(|i| i.imbalance).collect();
-    let replayed: Vec<f64> = cf.strategies[0].intervals.iter().map(|i| i.imbalance).collect();
-    let moved = pipe.intervals.iter().map(|i| i.migrated_blocks).sum();
-    (
-        (sim.checksum(), sim.particles.as_ref().unwrap().checksum(steps)),
-        li,
-        replayed,
-        moved,
-    )
+    tl.advance(steps).expect("stable");
+    tl.finish(&blockflow::timeloop::RunEnd::Done).unwrap();
+    let li: Vec<f64> = tl.intervals().iter().map(|i| i.imbalance).collect();
+    let replayed: Vec<f64> = tl.observer(cf).candidates[0]
+        .intervals()
+        .iter()
+        .map(|i| i.imbalance)
+        .collect();
+    let moved = tl.intervals().iter().map(|i| i.migrated_blocks).sum();
+    (common::checksums(tl.sim()), li, replayed, moved)
 }
 
 /// For every strategy, hopper-small rebalanced every 50 steps on P = 9 gives the checksums of the static

@@ -1,13 +1,10 @@
-//! Fluid–particle coupling (issue #5): drag of a simple cubic array against Zick & Homsy, no force at
+//! Fluid–particle coupling: drag of a simple cubic array against Zick & Homsy, no force at
 //! rest, momentum of fluid plus particle in a closed periodic box, and bitwise determinism of the hopper.
 
 mod common;
 use blockflow::config;
-use blockflow::pipeline::Pipeline;
-use blockflow::runner::{self, assignment, make_executor};
-use blockflow::scenes;
-use blockflow::sim::Simulation;
-use common::{cfg, run, sim64};
+use blockflow::physics::simulation::Simulation;
+use common::{run, timeloop, timeloop_of};
 use glam::DVec3;
 
 fn observable(s: &blockflow::io::summary::Summary, k: &str) -> f64 {
@@ -15,7 +12,7 @@ fn observable(s: &blockflow::io::summary::Summary, k: &str) -> f64 {
 }
 
 /// K = F / (6 π μ a U) of a simple cubic array with CLI at D = 16 within 3 % of Zick & Homsy (1982) at
-/// the three tabulated solid fractions (the issue's tolerance; measured errors are below 0.3 %).
+/// the three tabulated solid fractions (measured errors are below 0.3 %).
 #[test]
 fn drag_array_matches_zick_homsy_at_d16() {
     for (phi, k_ref) in [(0.064, 2.81), (0.125, 4.29), (0.216, 7.44)] {
@@ -59,14 +56,6 @@ fn box_config(text: &str) -> config::Config {
     config::parse(text, "test box", &[]).expect("valid box")
 }
 
-fn advance(c: &config::Config, sim: &mut Simulation<f64>, steps: u64) {
-    let owners = assignment(c, sim);
-    let mut pipe = Pipeline::new(sim, make_executor(c).unwrap(), owners, 4, 100);
-    pipe.surface = c.particles.boundary;
-    pipe.force_averaging = c.particles.force_averaging;
-    pipe.advance(sim, steps).expect("stable");
-}
-
 /// A free sphere at rest in fluid at rest, no gravity: the hydrodynamic force stays below 1e-10 and the
 /// sphere does not move (zero-centred PDFs make it exactly zero).
 #[test]
@@ -75,14 +64,14 @@ fn sphere_at_rest_in_fluid_at_rest_feels_no_force() {
         "[domain]\nblocks = [2, 2, 2]\nblock_size = [12, 12, 12]\nperiodic = [true, true, false]\n[fluid]\ntau = 0.7\n\
          [scene]\nkind = \"box\"\nspheres = [{ centre = [11.3, 12.6, 12.2], radius = 4.4, density = 1.2 }]\n",
     );
-    let scene = scenes::build(&c).unwrap();
-    let mut sim = runner::build_sim::<f64>(&c, &scene).unwrap();
-    advance(&c, &mut sim, 50);
+    let mut tl = timeloop_of(&c);
+    tl.advance(50).expect("stable");
+    let sim = tl.sim();
     let b = sim.particles.as_ref().unwrap().bodies(50)[0];
     assert!(b.force.length() <= 1e-10, "force {}", b.force);
     assert!(b.torque.length() <= 1e-10, "torque {}", b.torque);
     assert!(b.velocity.length() <= 1e-12);
-    let f = blockflow::coupling::tasks::total_forces(&sim.blocks);
+    let f = blockflow::physics::coupling::tasks::total_forces(&sim.blocks);
     assert!(f.iter().all(|x| x.force.length() <= 1e-10));
 }
 
@@ -115,21 +104,18 @@ fn fluid_plus_particle_momentum_is_conserved_in_a_periodic_box() {
          [scene]\nkind = \"box\"\nspheres = [{ centre = [12.3, 15.7, 16.2], radius = 4.5, density = 1.5, \
          velocity = [0.03, 0.01, 0.0] }]\n",
     );
-    let scene = scenes::build(&c).unwrap();
-    let mut sim = runner::build_sim::<f64>(&c, &scene).unwrap();
-    let (p0, _) = total_momentum(&sim);
-    let owners = assignment(&c, &sim);
-    let mut pipe = Pipeline::new(&sim, make_executor(&c).unwrap(), owners, 4, 100);
+    let mut tl = timeloop_of(&c);
+    let (p0, _) = total_momentum(tl.sim());
     for _ in 0..12 {
-        pipe.advance(&mut sim, 50).expect("stable");
-        let (p1, _) = total_momentum(&sim);
+        tl.advance(50).expect("stable");
+        let (p1, _) = total_momentum(tl.sim());
         assert!(
             (p1 - p0).length() <= 1e-3 * p0.length(),
             "step {}: momentum {p0} -> {p1}",
-            sim.step
+            tl.sim().step
         );
     }
-    let b = sim.particles.as_ref().unwrap().bodies(600)[0];
+    let b = tl.sim().particles.as_ref().unwrap().bodies(600)[0];
     assert!(
         b.velocity.length() < 0.5 * 0.0316,
         "the fluid took momentum from the sphere"
@@ -137,18 +123,9 @@ fn fluid_plus_particle_momentum_is_conserved_in_a_periodic_box() {
 }
 
 fn hopper_checksums(sets: &[&str], steps: u64) -> (u64, u64) {
-    let c = cfg("hopper-small.toml", sets);
-    let mut sim = sim64("hopper-small.toml", sets);
-    let owners = assignment(&c, &sim);
-    let mut pipe = Pipeline::new(
-        &sim,
-        make_executor(&c).unwrap(),
-        owners,
-        c.processes.steps_per_graph,
-        100,
-    );
-    pipe.first_touch(&sim);
-    pipe.advance(&mut sim, steps).expect("stable");
+    let mut tl = timeloop("hopper-small.toml", sets);
+    tl.advance(steps).expect("stable");
+    let sim = tl.sim();
     (sim.checksum(), sim.particles.as_ref().unwrap().checksum(steps))
 }
 

@@ -1,21 +1,20 @@
-//! The instability detector (issue #9 point 4): a NaN injected at a known cell and step is reported at
+//! The instability detector: a NaN injected at a known cell and step is reported at
 //! exactly that step and cell, through the task graph on any number of processes; a known-unstable
 //! setting ends `"unstable"`, a stable setting near the edge ends `"ok"`.
 //! Run with `cargo test --release --test detector`.
 
 mod common;
 
+use blockflow::app::run::{self, RunOptions};
 use blockflow::error::Error;
-use blockflow::runner;
-use common::{cfg, sim64};
+use common::{cfg, timeloop};
 
 /// Runs taylor_green 10 steps, writes NaN into every population of global cell `cell` of the state, and
 /// advances again: the detector must name step 11, the block holding the cell and the cell itself.
 fn inject(sets: &[&str], cell: [usize; 3]) {
-    let c = cfg("taylor_green.toml", sets);
-    let mut sim = sim64("taylor_green.toml", sets);
-    let mut pipe = runner::make_pipeline(&c, &sim).unwrap();
-    pipe.advance(&mut sim, 10).expect("stable before the injection");
+    let mut tl = timeloop("taylor_green.toml", sets);
+    tl.advance(10).expect("stable before the injection");
+    let sim = tl.sim();
     let block = (0..sim.blocks.len())
         .find(|&b| {
             let o = sim.blocks[b].origin;
@@ -31,7 +30,7 @@ fn inject(sets: &[&str], cell: [usize; 3]) {
     for q in 0..blockflow_kernels::d3q19::Q {
         f.set(q, i, f64::NAN);
     }
-    match pipe.advance(&mut sim, 20) {
+    match tl.advance(20) {
         Err(Error::Unstable(e)) => {
             assert_eq!(e.step, 11, "{sets:?}: {e}");
             assert_eq!(e.block, block, "{sets:?}: {e}");
@@ -69,20 +68,20 @@ fn unstable_settings_are_unstable_and_stable_ones_ok() {
         "taylor_green.toml",
         &["fluid.tau=0.5001", "scene.reynolds=100000.0", "run.steps=3000"],
     );
-    let opts = runner::RunOptions {
+    let opts = RunOptions {
         out: Some(out.join("bad")),
         ..Default::default()
     };
-    let r = runner::run(&bad, &opts);
+    let r = run::run(&bad, &opts);
     assert!(matches!(r, Err(Error::Unstable(_))), "{:?}", r.map(|s| s.status));
     let s = std::fs::read_to_string(out.join("bad/summary.json")).unwrap();
     assert!(s.contains("\"status\": \"unstable\"") && !s.contains("\"status\": \"ok\""));
     let good = cfg("taylor_green.toml", &["fluid.tau=0.51", "scene.reynolds=50.0"]);
-    let opts = runner::RunOptions {
+    let opts = RunOptions {
         out: Some(out.join("good")),
         ..Default::default()
     };
-    let s = runner::run(&good, &opts).expect("stable");
+    let s = run::run(&good, &opts).expect("stable");
     assert_eq!(s.status, "ok");
     std::fs::remove_dir_all(&out).ok();
 }
@@ -92,8 +91,8 @@ fn unstable_settings_are_unstable_and_stable_ones_ok() {
 /// `refused` instead of stopping the map.
 #[test]
 fn stress_map_tells_stable_unstable_and_refused_apart() {
-    use blockflow::io::plots_sweep::Outcome;
-    use blockflow::stress::{stress, StressOptions};
+    use blockflow::app::stress::{stress, StressOptions};
+    use blockflow::io::plots::scan::Outcome;
     let out = std::env::temp_dir().join(format!("blockflow-stress-{}", std::process::id()));
     let opts = StressOptions {
         scene: std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/cavity.toml"),
@@ -116,7 +115,7 @@ fn stress_map_tells_stable_unstable_and_refused_apart() {
         r.outcomes[2]
     );
     assert_eq!(r.outcomes[3], Outcome::Refused);
-    assert!(r.sweep.rows[1]
+    assert!(r.scan.rows[1]
         .message
         .as_deref()
         .is_some_and(|m| m.contains("lid_velocity")));

@@ -1,11 +1,9 @@
-//! Workload estimator (issue #7): the Table 1 quantities the engine keeps agree with a brute-force
+//! Workload estimator: the Table 1 quantities the engine keeps agree with a brute-force
 //! recount; `blockflow calibrate --quick` runs end to end and `blockflow run` loads what it wrote.
 
 mod common;
-use blockflow::calibrate::quantities;
-use blockflow::pipeline::Pipeline;
-use blockflow::runner::{assignment, make_executor};
-use common::{cfg, sim64, tmp};
+use blockflow::estimator::Quantities;
+use common::{timeloop, tmp};
 use glam::DVec3;
 use std::process::Command;
 
@@ -30,15 +28,13 @@ fn block_quantities_match_a_brute_force_recount() {
         "processes.steps_per_graph=1",
         "scene.duration=0.1",
     ];
-    let c = cfg("calibration.toml", &sets);
-    let mut sim = sim64("calibration.toml", &sets);
-    let owners = assignment(&c, &sim);
-    let mut pipe = Pipeline::new(&sim, make_executor(&c).unwrap(), owners, 1, 1000);
-    pipe.advance(&mut sim, 29).unwrap();
-    let parts = sim.particles.as_ref().unwrap();
+    let mut tl = timeloop("calibration.toml", &sets);
+    tl.advance(29).unwrap();
+    let parts = tl.sim().particles.as_ref().unwrap();
     let bodies = parts.bodies(29);
     let halo = parts.halo();
-    pipe.advance(&mut sim, 1).unwrap();
+    tl.advance(1).unwrap();
+    let sim = tl.sim();
     let d = sim.domain;
     let n = d.cells();
     let len = [n[0] as f64, n[1] as f64, n[2] as f64];
@@ -51,7 +47,7 @@ fn block_quantities_match_a_brute_force_recount() {
     };
     let mut total_k = 0.0;
     for blk in &sim.blocks {
-        let q = quantities(&sim, blk.id);
+        let q = Quantities::of(sim, blk.id);
         let l = blk.layout;
         let (mut f, mut nb) = (0.0, 0.0);
         let fluid_at = |x: usize, y: usize, z: usize| {
@@ -61,7 +57,7 @@ fn block_quantities_match_a_brute_force_recount() {
                 (blk.origin[1] + y) as i64 - 1,
                 (blk.origin[2] + z) as i64 - 1,
             ]);
-            blk.flags[i] & blockflow::geometry::flags::FLUID != 0 && !covered(g)
+            blk.flags[i] & blockflow::physics::geometry::flags::FLUID != 0 && !covered(g)
         };
         for z in 1..=l.size[2] {
             for y in 1..=l.size[1] {

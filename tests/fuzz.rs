@@ -1,4 +1,4 @@
-//! Config fuzzing (issue 10, point 6): proptest strategies generate scene files and `--set` strings, valid
+//! Config fuzzing: proptest strategies generate scene files and `--set` strings, valid
 //! and invalid, and run the real binary on each. Every case must either run its few steps and exit 0 with
 //! `"status": "ok"` in summary.json, or exit non-zero with one line on stderr (no panic, no backtrace, no
 //! summary.json that says ok), within a time limit and without being killed by a signal (an abort on a

@@ -2,9 +2,8 @@
 //! for every process/thread count, pinning, stealing policy and curve assignment (DESIGN.md principle 1).
 
 mod common;
-use blockflow::pipeline::Pipeline;
-use blockflow::runner::{assignment, make_executor};
-use common::{cfg, sim64};
+use blockflow::physics::serial;
+use common::{sim64, timeloop};
 
 /// Scene settings with at least 24 blocks.
 const SCENES: [(&str, &[&str], u64); 2] = [
@@ -23,7 +22,7 @@ const SCENES: [(&str, &[&str], u64); 2] = [
 fn serial_checksum(file: &str, sets: &[&str], steps: u64) -> u64 {
     let mut sim = sim64(file, sets);
     for _ in 0..steps {
-        sim.step().expect("stable");
+        serial::step(&mut sim).expect("stable");
     }
     sim.checksum()
 }
@@ -43,20 +42,17 @@ fn checksums_identical_for_every_process_layout_pinning_stealing_and_curve() {
                         sets.push(format!("processes.steal=\"{steal}\""));
                         sets.push(format!("balance.strategy=\"{curve}\""));
                         sets.push("processes.steps_per_graph=5".into());
+                        sets.push("balance.interval=10".into());
                         let refs: Vec<&str> = sets.iter().map(|s| s.as_str()).collect();
-                        let c = cfg(file, &refs);
-                        let mut sim = sim64(file, &refs);
-                        let owners = assignment(&c, &sim);
-                        assert!(owners.iter().all(|&o| (o as usize) < p));
-                        let mut pipe = Pipeline::new(&sim, make_executor(&c).unwrap(), owners, 5, 10);
-                        let per_step = pipe.tasks_per_step(&sim) as u64;
-                        pipe.first_touch(&sim);
-                        pipe.advance(&mut sim, steps).expect("stable");
-                        assert_eq!(sim.step, steps);
+                        let mut tl = timeloop(file, &refs);
+                        assert!(tl.pipeline().owners().iter().all(|&o| (o as usize) < p));
+                        let per_step = tl.tasks_per_step() as u64;
+                        tl.advance(steps).expect("stable");
+                        assert_eq!(tl.sim().step, steps);
                         // every task ran exactly once per step
-                        assert_eq!(pipe.totals.tasks, per_step * steps, "{file} P={p} T={t}");
+                        assert_eq!(tl.pipeline().totals().tasks, per_step * steps, "{file} P={p} T={t}");
                         assert_eq!(
-                            sim.checksum(),
+                            tl.sim().checksum(),
                             want,
                             "{file}: P={p} T={t} pin={pin} steal={steal} curve={curve} differs from the serial loop"
                         );
@@ -70,11 +66,9 @@ fn checksums_identical_for_every_process_layout_pinning_stealing_and_curve() {
 #[test]
 fn cross_process_messages_are_counted() {
     let sets = ["scene.resolution=24", "domain.blocks=[2,3,4]", "processes.count=4"];
-    let c = cfg("taylor_green.toml", &sets);
-    let mut sim = sim64("taylor_green.toml", &sets);
-    let owners = assignment(&c, &sim);
-    let mut pipe = Pipeline::new(&sim, make_executor(&c).unwrap(), owners, 4, 100);
-    pipe.advance(&mut sim, 4).unwrap();
-    assert!(pipe.totals.remote_messages > 0 && pipe.totals.local_copies > 0);
-    assert!(pipe.totals.message_bytes > 0);
+    let mut tl = timeloop("taylor_green.toml", &sets);
+    tl.advance(4).unwrap();
+    let t = tl.pipeline().totals();
+    assert!(t.remote_messages > 0 && t.local_copies > 0);
+    assert!(t.message_bytes > 0);
 }

@@ -1,13 +1,11 @@
-//! Rigid bodies on the block grid (issue #4): analytic facts through the distributed solver (bodies
+//! Rigid bodies on the block grid: analytic facts through the distributed solver (bodies
 //! crossing block faces, contacts owned by one block), and bitwise determinism for any assignment.
 
 mod common;
-use blockflow::domain::DomainSpec;
-use blockflow::particles::Particles;
-use blockflow::pipeline::Pipeline;
-use blockflow::runner::{assignment, make_executor};
+use blockflow::physics::domain::DomainSpec;
+use blockflow::physics::particles::Particles;
 use blockflow_kernels::rigid::{Body, RigidParams};
-use common::{cfg, run, sim64};
+use common::{cfg, run, sim64, timeloop};
 use glam::DVec3;
 
 fn observable(s: &blockflow::io::summary::Summary, k: &str) -> f64 {
@@ -44,7 +42,7 @@ fn free_fall_across_blocks_matches_the_discrete_solution() {
 }
 
 /// A sphere on an incline (crossing block faces): rolls with a = 5/7 g sin θ when tan θ ≤ 7/2 μ,
-/// slides with a = g (sin θ − μ cos θ) otherwise; within 1 % (the issue's tolerance).
+/// slides with a = g (sin θ − μ cos θ) otherwise; within 1 %.
 #[test]
 fn incline_rolls_and_slides_with_the_analytic_acceleration() {
     for (mu, rolls) in [(0.3, true), (0.05, false)] {
@@ -115,18 +113,16 @@ fn granular_box_bitwise_identical_for_any_assignment() {
             let mut sets: Vec<String> = base.iter().map(|s| s.to_string()).collect();
             sets.push(format!("processes.count={p}"));
             sets.push(format!("balance.strategy=\"{curve}\""));
+            sets.push("balance.interval=50".into());
             let refs: Vec<&str> = sets.iter().map(|s| s.as_str()).collect();
-            let c = cfg("granular_box.toml", &refs);
-            let mut sim = sim64("granular_box.toml", &refs);
-            let owners = assignment(&c, &sim);
+            let mut tl = timeloop("granular_box.toml", &refs);
             assert_eq!(
-                *owners.iter().max().unwrap() as usize,
+                *tl.pipeline().owners().iter().max().unwrap() as usize,
                 p - 1,
                 "every process owns blocks"
             );
-            let mut pipe = Pipeline::new(&sim, make_executor(&c).unwrap(), owners, 3, 50);
-            pipe.advance(&mut sim, steps).expect("stable");
-            let parts = sim.particles.as_ref().unwrap();
+            tl.advance(steps).expect("stable");
+            let parts = tl.sim().particles.as_ref().unwrap();
             assert!(parts.counters.contacts > 0);
             assert_eq!(parts.checksum(steps), want, "P = {p}, {curve}");
         }

@@ -1,4 +1,4 @@
-//! Checkpoints and restart through the `blockflow` binary (issue 10): a run checkpointed half-way and
+//! Checkpoints and restart through the `blockflow` binary: a run checkpointed half-way and
 //! restarted on another process count (and, for the hopper, another balancing strategy) ends bitwise
 //! where the uninterrupted run ends; bad checkpoints are refused with one line naming the file and the
 //! reason; SIGTERM stops a run with a checkpoint it can be continued from; the output folder and the

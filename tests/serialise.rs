@@ -3,36 +3,18 @@
 //! for bad input, and `encoded_len`.
 
 mod common;
-use blockflow::config::Config;
-use blockflow::coupling::ParticleCells;
-use blockflow::particles::{Published, Work};
-use blockflow::pipeline::Pipeline;
-use blockflow::runner::{assignment, make_executor};
+use blockflow::physics::particle_cells::ParticleCells;
+use blockflow::physics::particles::{Published, Work};
+use blockflow::physics::simulation::Simulation;
 use blockflow::serialise::{
     checksum, decode_block, encode_block, encoded_len, peek_header, FormatError, BLOCK_FORMAT_VERSION,
 };
-use blockflow::sim::Simulation;
-use common::{cfg, sim64};
+use blockflow::timeloop::TimeLoop;
+use common::{cfg, checksums, sim64, timeloop};
 
-/// A simulation of a scene and a pipeline to advance it (as `blockflow run` sets them up).
-fn start(file: &str, sets: &[&str]) -> (Config, Simulation<f64>, Pipeline<f64>) {
-    let c = cfg(file, sets);
-    let sim = sim64(file, sets);
-    let pipe = pipeline(&c, &sim);
-    pipe.first_touch(&sim);
-    (c, sim, pipe)
-}
-
-fn pipeline(c: &Config, sim: &Simulation<f64>) -> Pipeline<f64> {
-    let owners = assignment(c, sim);
-    let mut pipe = Pipeline::new(sim, make_executor(c).unwrap(), owners, c.processes.steps_per_graph, 100);
-    pipe.surface = c.particles.boundary;
-    pipe.force_averaging = c.particles.force_averaging;
-    pipe
-}
-
-fn checksums(sim: &Simulation<f64>) -> (u64, Option<u64>) {
-    (sim.checksum(), sim.particles.as_ref().map(|p| p.checksum(sim.step)))
+/// The time loop of a scene (as `blockflow run` sets it up).
+fn start(file: &str, sets: &[&str]) -> TimeLoop<f64> {
+    timeloop(file, sets)
 }
 
 fn encode_all(sim: &Simulation<f64>) -> Vec<Vec<u8>> {
@@ -82,22 +64,23 @@ fn decode_all(sim: &Simulation<f64>, bytes: &[Vec<u8>]) {
 /// encode → decode into the same simulation → encode: identical bytes for every block, `encoded_len`
 /// equal to the length, and the checksums unchanged.
 fn round_trip(file: &str, sets: &[&str], steps: u64) {
-    let (_, mut sim, mut pipe) = start(file, sets);
-    pipe.advance(&mut sim, steps).expect("stable");
-    let before = checksums(&sim);
+    let mut tl = start(file, sets);
+    tl.advance(steps).expect("stable");
+    let sim = tl.sim();
+    let before = checksums(sim);
     for id in 0..sim.blocks.len() {
         let mut a = Vec::new();
-        encode_block(&sim, id, &mut a);
-        assert_eq!(encoded_len(&sim, id), a.len(), "{file} block {id}: encoded_len");
+        encode_block(sim, id, &mut a);
+        assert_eq!(encoded_len(sim, id), a.len(), "{file} block {id}: encoded_len");
         let h = peek_header(&a).unwrap();
         assert_eq!((h.id, h.step, h.total_len), (id, steps, a.len()));
         // SAFETY: nothing runs.
-        unsafe { decode_block(&sim, id, &a) }.unwrap_or_else(|e| panic!("{file} block {id}: {e}"));
+        unsafe { decode_block(sim, id, &a) }.unwrap_or_else(|e| panic!("{file} block {id}: {e}"));
         let mut b = Vec::new();
-        encode_block(&sim, id, &mut b);
+        encode_block(sim, id, &mut b);
         assert!(a == b, "{file} block {id}: bytes differ after a round trip");
     }
-    assert_eq!(checksums(&sim), before, "{file}: state changed by a round trip");
+    assert_eq!(checksums(sim), before, "{file}: state changed by a round trip");
 }
 
 #[test]
@@ -112,7 +95,8 @@ fn round_trip_is_bitwise_granular_box() {
 
 #[test]
 fn round_trip_is_bitwise_hopper_small() {
-    let (_, sim, _) = start("hopper-small.toml", &[]);
+    let tl = start("hopper-small.toml", &[]);
+    let sim = tl.sim();
     // The coupled scene exercises every section: some blocks carry an overlay with covered cells.
     assert!(sim
         .blocks
@@ -125,24 +109,24 @@ fn round_trip_is_bitwise_hopper_small() {
 /// decoded; the final checksums and every block's bytes are identical. With `restart`, the second run
 /// decodes into a fresh simulation built from the scene (a checkpoint restart) instead.
 fn continuation(file: &str, sets: &[&str], n1: u64, n2: u64, restart: bool) {
-    let (_, mut a, mut pa) = start(file, sets);
-    pa.advance(&mut a, n1).expect("stable");
-    pa.advance(&mut a, n2).expect("stable");
-    let want = checksums(&a);
+    let mut a = start(file, sets);
+    a.advance(n1).expect("stable");
+    a.advance(n2).expect("stable");
+    let want = checksums(a.sim());
 
-    let (c, mut b, mut pb) = start(file, sets);
-    pb.advance(&mut b, n1).expect("stable");
-    let bytes = encode_all(&b);
+    let mut b = start(file, sets);
+    b.advance(n1).expect("stable");
+    let bytes = encode_all(b.sim());
     if restart {
-        b = sim64(file, sets);
-        b.step = n1;
-        pb = pipeline(&c, &b);
+        b = start(file, sets);
+        b.sim_mut().step = n1;
+        b.resume();
     }
-    wipe(&b);
-    decode_all(&b, &bytes);
-    pb.advance(&mut b, n2).expect("stable");
-    assert_eq!(checksums(&b), want, "{file}: continuation differs");
-    let (ea, eb) = (encode_all(&a), encode_all(&b));
+    wipe(b.sim());
+    decode_all(b.sim(), &bytes);
+    b.advance(n2).expect("stable");
+    assert_eq!(checksums(b.sim()), want, "{file}: continuation differs");
+    let (ea, eb) = (encode_all(a.sim()), encode_all(b.sim()));
     let differ: Vec<usize> = (0..ea.len()).filter(|&id| ea[id] != eb[id]).collect();
     assert!(
         differ.is_empty(),
@@ -187,7 +171,7 @@ fn restart_in_a_fresh_simulation_is_bitwise_taylor_green() {
 /// (18³), checksum (8).
 #[test]
 fn encoded_len_of_a_16_cubed_fluid_block() {
-    let (_, sim, _) = start("taylor_green.toml", &[]);
+    let sim = sim64("taylor_green.toml", &[]);
     assert_eq!(sim.domain.block_size, [16, 16, 16]);
     let mut v = Vec::new();
     encode_block(&sim, 0, &mut v);
@@ -205,22 +189,23 @@ fn decode_err(sim: &Simulation<f64>, id: usize, bytes: &[u8]) -> FormatError {
 
 #[test]
 fn bad_input_gives_the_matching_error() {
-    let (_, mut sim, mut pipe) = start("hopper-small.toml", &[]);
-    pipe.advance(&mut sim, 3).expect("stable");
+    let mut tl = start("hopper-small.toml", &[]);
+    tl.advance(3).expect("stable");
+    let sim = tl.sim();
     let id = (0..sim.blocks.len())
         .find(|&b| sim.blocks[b].particle_cells().is_some_and(|pc| pc.owned()))
         .expect("a block with particles");
     let mut good = Vec::new();
-    encode_block(&sim, id, &mut good);
+    encode_block(sim, id, &mut good);
     let n = good.len();
 
     // Truncated anywhere: never a panic, always an error; past the fixed header it says Truncated.
     for cut in (0..n).step_by(97).chain([n - 1, n - 8, 60, 49, 8, 4, 0]) {
-        let e = decode_err(&sim, id, &good[..cut]);
+        let e = decode_err(sim, id, &good[..cut]);
         assert!(matches!(e, FormatError::Truncated { .. }), "cut at {cut}: {e}");
     }
     assert_eq!(
-        decode_err(&sim, id, &good[..n - 1]),
+        decode_err(sim, id, &good[..n - 1]),
         FormatError::Truncated {
             needed: n,
             found: n - 1
@@ -230,16 +215,16 @@ fn bad_input_gives_the_matching_error() {
     for at in (17..n).step_by(331).chain([n - 1, n / 2]) {
         let mut bad = good.clone();
         bad[at] ^= 0x10;
-        let e = decode_err(&sim, id, &bad);
+        let e = decode_err(sim, id, &bad);
         assert!(matches!(e, FormatError::Checksum { .. }), "flip at {at}: {e}");
     }
     let mut bad = good.clone();
     bad[1] = b'X';
-    assert_eq!(decode_err(&sim, id, &bad), FormatError::BadMagic);
+    assert_eq!(decode_err(sim, id, &bad), FormatError::BadMagic);
     let mut bad = good.clone();
     bad[5..9].copy_from_slice(&(BLOCK_FORMAT_VERSION + 1).to_le_bytes());
     assert_eq!(
-        decode_err(&sim, id, &bad),
+        decode_err(sim, id, &bad),
         FormatError::Version {
             found: BLOCK_FORMAT_VERSION + 1,
             expected: BLOCK_FORMAT_VERSION
@@ -252,23 +237,24 @@ fn bad_input_gives_the_matching_error() {
     bad[table_len_at..table_len_at + 8].copy_from_slice(&(len + 8).to_le_bytes());
     let sum = checksum(&bad[..n - 8]);
     bad[n - 8..].copy_from_slice(&sum.to_le_bytes());
-    assert!(matches!(decode_err(&sim, id, &bad), FormatError::Malformed(_)));
+    assert!(matches!(decode_err(sim, id, &bad), FormatError::Malformed(_)));
     // Trailing bytes.
     let mut long = good.clone();
     long.push(0);
-    assert!(matches!(decode_err(&sim, id, &long), FormatError::Mismatch(_)));
+    assert!(matches!(decode_err(sim, id, &long), FormatError::Mismatch(_)));
 
     // Another block id, another geometry.
     let other = (id + 1) % sim.blocks.len();
-    let e = decode_err(&sim, other, &good);
+    let e = decode_err(sim, other, &good);
     assert!(matches!(&e, FormatError::Mismatch(m) if m.contains("block")), "{e}");
     // After all the refused input the block is unchanged.
     let mut now = Vec::new();
-    encode_block(&sim, id, &mut now);
+    encode_block(sim, id, &mut now);
     assert!(now == good, "a refused decode changed the block");
     // Another step.
-    pipe.advance(&mut sim, 1).expect("stable");
-    let e = decode_err(&sim, id, &good);
+    tl.advance(1).expect("stable");
+    let sim = tl.sim();
+    let e = decode_err(sim, id, &good);
     assert!(matches!(&e, FormatError::Mismatch(m) if m.contains("step")), "{e}");
 
     // Another block size (same id, same precision).
@@ -276,7 +262,7 @@ fn bad_input_gives_the_matching_error() {
     assert_ne!(tg.domain.block_size, sim.domain.block_size);
     let mut tg_bytes = Vec::new();
     encode_block(&tg, 0, &mut tg_bytes);
-    let (_, small, _) = start("taylor_green.toml", &["scene.resolution=16"]);
+    let small = sim64("taylor_green.toml", &["scene.resolution=16"]);
     assert_ne!(small.domain.block_size, tg.domain.block_size);
     let e = decode_err(&small, 0, &tg_bytes);
     assert!(
@@ -287,7 +273,7 @@ fn bad_input_gives_the_matching_error() {
     // Another precision.
     let c = cfg("taylor_green.toml", &[]);
     let scene = blockflow::scenes::build(&c).unwrap();
-    let tg32 = blockflow::runner::build_sim::<f32>(&c, &scene).unwrap();
+    let tg32 = blockflow::timeloop::setup::build_sim::<f32>(&c, &scene).unwrap();
     let mut b32 = Vec::new();
     encode_block(&tg32, 0, &mut b32);
     assert_eq!(encoded_len(&tg32, 0), b32.len());

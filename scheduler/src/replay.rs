@@ -24,16 +24,20 @@ pub fn load_imbalance(loads: &[f64]) -> f64 {
     max / mean - 1.0
 }
 
-/// Per-process workload: the sum of task durations (ns) grouped by the task's *owner* process, as `f64`
-/// (`len = processes`). A task whose owner is `>= processes` counts for process `owner % processes`; a
-/// missing duration counts as 0. Empty for `processes == 0`.
-pub fn process_loads(graph: &TaskGraph, durations_ns: &[u64], processes: usize) -> Vec<f64> {
+/// Per-process workload: the loads of `(owner, load)` items summed by owner process (`len = processes`),
+/// e.g. task durations by the task's owner or block weights by the block's owner. An owner `>= processes`
+/// counts for process `owner % processes`. Empty for `processes == 0`.
+///
+/// The items are added in iteration order, one `+=` per item onto its process's running sum starting from
+/// `0.0`: the iteration order is the summation order, so the same items in the same order give bitwise
+/// the same sums (callers rely on this for reproducible results).
+pub fn process_loads(items: impl IntoIterator<Item = (u32, f64)>, processes: usize) -> Vec<f64> {
     let mut loads = vec![0.0; processes];
     if processes == 0 {
         return loads;
     }
-    for (spec, &d) in graph.specs().iter().zip(durations_ns) {
-        loads[spec.owner as usize % processes] += d as f64;
+    for (owner, load) in items {
+        loads[owner as usize % processes] += load;
     }
     loads
 }
@@ -202,13 +206,34 @@ mod tests {
         assert_eq!(load_imbalance(&[f64::NAN, 1.0]), 0.0);
     }
 
+    /// Task durations by the task's owner.
+    fn task_loads<'a>(g: &'a TaskGraph, durations_ns: &'a [u64]) -> impl Iterator<Item = (u32, f64)> + 'a {
+        g.specs().iter().zip(durations_ns).map(|(s, &d)| (s.owner, d as f64))
+    }
+
     #[test]
     fn loads_by_owner() {
         let g = graph(&[0, 1, 1, 2, 0], &[(0, 1)]);
-        assert_eq!(process_loads(&g, &[1, 2, 3, 4, 5], 3), vec![6.0, 5.0, 4.0]);
+        let d = [1, 2, 3, 4, 5];
+        assert_eq!(process_loads(task_loads(&g, &d), 3), vec![6.0, 5.0, 4.0]);
         // Owner 2 folds onto process 0 when only 2 processes are asked for; missing durations count 0.
-        assert_eq!(process_loads(&g, &[1, 2, 3, 4], 2), vec![5.0, 5.0]);
-        assert!(process_loads(&g, &[1, 2, 3, 4, 5], 0).is_empty());
+        assert_eq!(process_loads(task_loads(&g, &d[..4]), 2), vec![5.0, 5.0]);
+        assert!(process_loads(task_loads(&g, &d), 0).is_empty());
+        // Any (owner, load) items, e.g. block weights by owner; an empty input gives zeros.
+        let weights = [0.5, 0.25, 1.0];
+        let owners = [1u32, 0, 1];
+        assert_eq!(process_loads(owners.iter().copied().zip(weights), 2), vec![0.25, 1.5]);
+        assert_eq!(process_loads(std::iter::empty(), 2), vec![0.0, 0.0]);
+    }
+
+    #[test]
+    fn loads_are_summed_in_iteration_order() {
+        // 1e16 + 1 + 1 rounds to 1e16 left to right, but 1 + 1 + 1e16 is 1e16 + 2.
+        let forward = [(0, 1e16), (0, 1.0), (0, 1.0)];
+        let backward = [(0, 1.0), (0, 1.0), (0, 1e16)];
+        assert_eq!(process_loads(forward, 1), vec![1e16]);
+        assert_eq!(process_loads(backward, 1), vec![1e16 + 2.0]);
+        assert_ne!(process_loads(forward, 1), process_loads(backward, 1));
     }
 
     #[test]

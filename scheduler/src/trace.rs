@@ -31,9 +31,36 @@ struct Event {
     step: u64,
 }
 
+/// Spare palette for parts without a colour of their own, by part index.
+const SPARE: [&str; 6] = [
+    "generic_work",
+    "cq_build_running",
+    "rail_idle",
+    "startup",
+    "cq_build_attempt_passed",
+    "grey",
+];
+
+/// Name and colour of one part (`TaskSpec::part`) in a trace.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct TracePart {
+    /// Name of the part: the event name is `"<name>:<block>"` and the event category is the name.
+    pub name: String,
+    /// Chrome trace-viewer colour name (the event's `"cname"`, e.g. `"thread_state_running"`); `None`: a
+    /// colour from a spare palette by part index.
+    pub colour: Option<&'static str>,
+}
+
+impl TracePart {
+    /// The colour written for this part when it is part number `part`.
+    fn colour_at(&self, part: usize) -> &'static str {
+        self.colour.unwrap_or(SPARE[part % SPARE.len()])
+    }
+}
+
 /// Collects task records of one or more runs and writes them as a Chrome trace.
 pub struct TraceWriter {
-    part_names: Vec<String>,
+    parts: Vec<TracePart>,
     worker_cores: Vec<Option<usize>>,
     threads_per_process: usize,
     step_of: StepFn,
@@ -47,7 +74,7 @@ pub struct TraceWriter {
 impl std::fmt::Debug for TraceWriter {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("TraceWriter")
-            .field("part_names", &self.part_names)
+            .field("parts", &self.parts)
             .field("worker_cores", &self.worker_cores)
             .field("threads_per_process", &self.threads_per_process)
             .field("runs", &self.runs)
@@ -58,13 +85,14 @@ impl std::fmt::Debug for TraceWriter {
 
 impl TraceWriter {
     /// A writer for workers laid out process-major (`worker = p * threads_per_process + t`), pinned to
-    /// `worker_cores` (`None`: unpinned). `part_names[i]` names `TaskSpec::part == i`. The step recorded
-    /// for a task is the index of its run unless [`TraceWriter::with_step`] sets another rule.
-    pub fn new(part_names: Vec<String>, worker_cores: Vec<Option<usize>>, threads_per_process: usize) -> Self {
+    /// `worker_cores` (`None`: unpinned). `parts[i]` names and colours `TaskSpec::part == i`; a part without
+    /// an entry is named `"part<i>"` and coloured from the spare palette. The step recorded for a task is
+    /// the index of its run unless [`TraceWriter::with_step`] sets another rule.
+    pub fn new(parts: Vec<TracePart>, worker_cores: Vec<Option<usize>>, threads_per_process: usize) -> Self {
         let t = threads_per_process.max(1);
         let workers = (0..worker_cores.len()).map(|w| (w as u32, (w / t) as u32)).collect();
         TraceWriter {
-            part_names,
+            parts,
             worker_cores,
             threads_per_process: t,
             step_of: Box::new(|run, _| run as u64),
@@ -189,10 +217,11 @@ impl TraceWriter {
         }
         let fallback: Vec<String> = (0..=u8::MAX).map(|i| format!("part{i}")).collect();
         for e in &self.events {
-            let part = self
-                .part_names
-                .get(e.spec.part as usize)
-                .unwrap_or(&fallback[e.spec.part as usize]);
+            let index = e.spec.part as usize;
+            let (part, cname) = match self.parts.get(index) {
+                Some(p) => (p.name.as_str(), p.colour_at(index)),
+                None => (fallback[index].as_str(), SPARE[index % SPARE.len()]),
+            };
             let event = Complete {
                 name: format!("{part}:{}", e.spec.block),
                 cat: part,
@@ -201,7 +230,7 @@ impl TraceWriter {
                 dur: e.dur_ns as f64 / 1000.0,
                 pid: e.process,
                 tid: e.worker,
-                cname: part_colour(part, e.spec.part as usize),
+                cname,
                 args: Args {
                     task: e.task,
                     block: e.spec.block,
@@ -257,35 +286,17 @@ struct Args<'a> {
     step: u64,
 }
 
-/// Chrome trace-viewer colour name for a part: fixed for the known parts of a time step, otherwise
-/// cycling through a spare palette by part index.
-fn part_colour(name: &str, part: usize) -> &'static str {
-    const SPARE: [&str; 6] = [
-        "generic_work",
-        "cq_build_running",
-        "rail_idle",
-        "startup",
-        "cq_build_attempt_passed",
-        "grey",
-    ];
-    match name.to_ascii_lowercase().as_str() {
-        "lbm" | "collide" | "stream_collide" | "fused" => "thread_state_running",
-        "stream" => "rail_response",
-        "exchange" | "comm" | "communication" => "thread_state_iowait",
-        "boundary" => "yellow",
-        "map" | "mapping" => "rail_animation",
-        "reconstruct" | "reconstruction" => "olive",
-        "forces" => "rail_load",
-        "rb" | "rigid_body" => "bad",
-        "rb_sync" => "terrible",
-        _ => SPARE[part % SPARE.len()],
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::graph::GraphBuilder;
+
+    fn part(name: &str, colour: Option<&'static str>) -> TracePart {
+        TracePart {
+            name: name.into(),
+            colour,
+        }
+    }
 
     fn small() -> (TaskGraph, Vec<TaskRecord>) {
         let mut g = GraphBuilder::new();
@@ -319,8 +330,11 @@ mod tests {
     fn writes_a_trace_that_parses_back() {
         let (g, records) = small();
         let cores = vec![Some(0), Some(1), None, Some(1)];
-        let mut w = TraceWriter::new(vec!["collide".into(), "stream".into()], cores, 2)
-            .with_step(|run, spec| 10 * run as u64 + spec.payload as u64);
+        let parts = vec![
+            part("collide", Some("thread_state_running")),
+            part("stream", Some("rail_response")),
+        ];
+        let mut w = TraceWriter::new(parts, cores, 2).with_step(|run, spec| 10 * run as u64 + spec.payload as u64);
         w.add_run(&g, &records, 0);
         assert_eq!(w.end_ns(), 9000);
         w.add_run(&g, &records, w.end_ns());
@@ -359,6 +373,8 @@ mod tests {
         }
         assert_eq!(complete[0]["cname"], "thread_state_running");
         assert_eq!(complete[1]["cname"], "rail_response");
+        // Part 7 has no entry: spare palette by index (7 % 6).
+        assert_eq!(complete[2]["cname"], "cq_build_running");
         assert_eq!(complete[1]["args"]["part"], "stream");
         assert_eq!(complete[2]["args"]["block"], 5);
         let thread_names: Vec<&str> = meta
@@ -385,6 +401,48 @@ mod tests {
             .collect();
         assert_eq!(left.len(), 1, "{left:?}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The JSON document a writer produces for `small()` run once.
+    fn document(parts: Vec<TracePart>) -> String {
+        let (g, records) = small();
+        let mut w = TraceWriter::new(parts, vec![Some(0), Some(1), None], 2);
+        w.add_run(&g, &records, 0);
+        let mut out = Vec::new();
+        w.write_to(&mut out).unwrap();
+        String::from_utf8(out).unwrap()
+    }
+
+    #[test]
+    fn explicit_colours_and_palette_fallback() {
+        let text = document(vec![part("lbm", Some("thread_state_running")), part("extra", None)]);
+        let doc: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let cnames: Vec<(&str, &str)> = doc["traceEvents"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|e| e["ph"] == "X")
+            .map(|e| (e["name"].as_str().unwrap(), e["cname"].as_str().unwrap()))
+            .collect();
+        // Part 0 keeps its explicit colour, part 1 (no colour) and part 7 (no entry) take the palette by index.
+        assert_eq!(
+            cnames,
+            [
+                ("lbm:3", "thread_state_running"),
+                ("extra:4", "cq_build_running"),
+                ("part7:5", "cq_build_running")
+            ]
+        );
+        // Without any colour every part takes the palette entry of its index, whatever its name.
+        let text = document(vec![part("lbm", None), part("stream", None)]);
+        assert!(text.contains(r#""name":"lbm:3","cat":"lbm","ph":"X""#), "{text}");
+        assert!(text.contains(r#""cname":"generic_work""#), "{text}");
+        assert!(!text.contains("thread_state_running"), "{text}");
+        // An explicit colour equal to the palette entry writes the same document as `None`.
+        assert_eq!(
+            document(vec![part("a", Some("generic_work")), part("b", None)]),
+            document(vec![part("a", None), part("b", Some("cq_build_running"))])
+        );
     }
 
     #[test]

@@ -35,8 +35,11 @@
 //! `diffusive_iterations` main iterations make one balancing step. A process without blocks has no
 //! neighbours and receives nothing.
 
-use super::strategy::{process_loads, BlockGraph, Contact, Distribute, Distribution};
+use super::block_graph::BlockGraph;
+use super::distribute::{Distribute, Distribution};
 use crate::config::DiffusiveMode;
+use crate::metrics::edge_cut::Touch;
+use crate::metrics::load::process_loads;
 
 /// The diffusive strategy.
 pub struct Diffusive {
@@ -55,7 +58,7 @@ const EPS: f64 = 1e-12;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Tier {
     /// Touches the receiver: best contact, and more contacts first (stored negated).
-    Touching(Contact, i64),
+    Touching(Touch, i64),
     /// Touches some other process.
     Boundary,
     /// Only touches blocks of its own process.
@@ -223,11 +226,11 @@ fn choose(
             continue;
         }
         let from = old[b];
-        let (mut contact, mut count, mut boundary) = (None::<Contact>, 0i64, false);
+        let (mut contact, mut count, mut boundary) = (None::<Touch>, 0i64, false);
         for a in &g.adj[b] {
             let o = old[a.block];
             if o as usize == to {
-                contact = Some(contact.map_or(a.contact, |c| c.min(a.contact)));
+                contact = Some(contact.map_or(a.touch, |c| c.min(a.touch)));
                 count += 1;
             } else if o != from {
                 boundary = true;
@@ -279,7 +282,7 @@ mod tests {
     use super::*;
 
     fn graph(blocks: [usize; 3]) -> BlockGraph {
-        super::super::strategy::closed_grid(blocks)
+        super::super::block_graph::closed_grid(blocks)
     }
 
     fn max_load(w: &[f64], o: &[u32], p: usize) -> f64 {

@@ -35,27 +35,6 @@ pub fn greedy_split(weights: &[f64], processes: usize) -> Vec<u32> {
     owner
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn greedy_split_hand_cases() {
-        assert_eq!(greedy_split(&[1.0; 6], 3), vec![0, 0, 1, 1, 2, 2]);
-        // heavy first block: process 0 takes it alone, the rest share
-        assert_eq!(
-            greedy_split(&[6.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], 2),
-            vec![0, 1, 1, 1, 1, 1, 1]
-        );
-        // more processes than blocks: the extra processes stay empty
-        assert_eq!(greedy_split(&[1.0, 1.0], 3), vec![0, 1]);
-        // zero weights still get an owner each
-        assert_eq!(greedy_split(&[0.0, 0.0, 0.0, 0.0], 2).len(), 4);
-        // the last process takes whatever is left
-        assert_eq!(greedy_split(&[1.0, 1.0, 1.0, 5.0], 2), vec![0, 0, 0, 1]);
-    }
-}
-
 /// The contiguous split of the same order that minimises the heaviest process (`balance.split =
 /// "optimal"`): bisection on the bottleneck B (a split with every part ≤ B exists iff packing blocks
 /// greedily into parts of capacity B needs at most `processes` parts), then that packing, cutting early
@@ -168,14 +147,8 @@ mod optimal_tests {
     /// runs of owners 0..P in order, and gives every process a block when there are enough blocks.
     #[test]
     fn optimal_never_worse_than_greedy() {
-        let mut s = 0x1234_5678_u64;
-        let mut next = || {
-            s = s.wrapping_add(0x9e37_79b9_7f4a_7c15);
-            let mut z = s;
-            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-            z ^ (z >> 31)
-        };
+        let mut rng = crate::util::hash::SplitMix(0x1234_5678);
+        let mut next = || rng.next_u64();
         for _ in 0..2000 {
             let n = 1 + (next() % 60) as usize;
             let p = 1 + (next() % 12) as usize;
@@ -193,5 +166,26 @@ mod optimal_tests {
                 assert_eq!(*o.last().unwrap() as usize, p - 1, "every process gets a block: {o:?}");
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn greedy_split_hand_cases() {
+        assert_eq!(greedy_split(&[1.0; 6], 3), vec![0, 0, 1, 1, 2, 2]);
+        // heavy first block: process 0 takes it alone, the rest share
+        assert_eq!(
+            greedy_split(&[6.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0], 2),
+            vec![0, 1, 1, 1, 1, 1, 1]
+        );
+        // more processes than blocks: the extra processes stay empty
+        assert_eq!(greedy_split(&[1.0, 1.0], 3), vec![0, 1]);
+        // zero weights still get an owner each
+        assert_eq!(greedy_split(&[0.0, 0.0, 0.0, 0.0], 2).len(), 4);
+        // the last process takes whatever is left
+        assert_eq!(greedy_split(&[1.0, 1.0, 1.0, 5.0], 2), vec![0, 0, 0, 1]);
     }
 }

@@ -17,32 +17,17 @@
 
 pub mod coefficients;
 pub mod fit;
+pub mod quantities;
 pub mod stats;
 pub mod weights;
 
 pub use coefficients::{Coefficients, Provenance};
 pub use fit::{fit, held_out};
+pub use quantities::Quantities;
 pub use stats::{evaluate, mad, median, Evaluation, PartStats};
 pub use weights::{measured, Corrector};
 
-/// Table 1 quantities of one block in one step (all f64, so that they enter the regressions directly).
-#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Quantities {
-    /// C: total number of cells on the block (eqs. 10–13).
-    pub c: f64,
-    /// F: number of cells flagged as fluid (eqs. 10, 12, 13).
-    pub f: f64,
-    /// NB: number of cells flagged as near boundary (Table 1's B; eq. 11).
-    pub nb: f64,
-    /// P_L: number of local particles (eqs. 12–14).
-    pub pl: f64,
-    /// P_S: number of shadow particles (eqs. 12–14).
-    pub ps: f64,
-    /// K: number of contacts between rigid bodies (eq. 14).
-    pub k: f64,
-    /// S: number of sub-cycles of the rigid-body simulation (the factor of eq. 14).
-    pub s: f64,
-}
+use crate::physics::parts::{ByPart, Part};
 
 /// Measured (or predicted) seconds per part of one block in one step: m_LBM, m_BH, m_Coup1, m_Coup2, m_RB
 /// of section 3.3 (or WL_LBM … WL_RB of eqs. 10–14).
@@ -70,6 +55,19 @@ impl PartTimes {
     pub fn as_array(&self) -> [f64; 5] {
         [self.lbm, self.bh, self.coup1, self.coup2, self.rb]
     }
+
+    /// The measured seconds of one block and step from its CPU nanoseconds per part of the step (the
+    /// ghost exchange is not one of the five).
+    pub fn from_part_ns(t: &ByPart<u64>) -> Self {
+        let s = |p: Part| t[p] as f64 * 1e-9;
+        PartTimes {
+            lbm: s(STEP_PARTS[0]),
+            bh: s(STEP_PARTS[1]),
+            coup1: s(STEP_PARTS[2]),
+            coup2: s(STEP_PARTS[3]),
+            rb: s(STEP_PARTS[4]),
+        }
+    }
 }
 
 /// One calibration sample (section 3.3): which run (block size/diameter combination), step, block, the
@@ -91,6 +89,9 @@ pub struct Sample {
 /// Names of the five parts (eqs. 10–14), in the order used everywhere in this module: TOML tables, the
 /// keys of [`Evaluation::per_part`] and [`PartTimes::as_array`].
 pub const PARTS: [&str; 5] = ["lbm", "bh", "coup1", "coup2", "rb"];
+
+/// The part of the time step each of [`PARTS`] measures (same order).
+pub const STEP_PARTS: [Part; 5] = [Part::Lbm, Part::Boundary, Part::Map, Part::Reconstruct, Part::RigidBody];
 
 /// Regressors of eq. (10): C, F, 1 (multiplied by a1, a2, a3).
 pub(crate) fn row_lbm(q: &Quantities) -> [f64; 3] {
@@ -130,34 +131,7 @@ pub(crate) mod testutil {
 
     use super::*;
 
-    /// splitmix64 (Steele, Lea, Flood 2014): a tiny deterministic generator.
-    pub struct SplitMix64(pub u64);
-
-    impl SplitMix64 {
-        /// Next 64 random bits.
-        pub fn next_u64(&mut self) -> u64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^ (z >> 31)
-        }
-
-        /// Uniform in [0, 1).
-        pub fn unit(&mut self) -> f64 {
-            (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
-        }
-
-        /// Uniform integer in [0, n).
-        pub fn below(&mut self, n: u64) -> u64 {
-            self.next_u64() % n
-        }
-
-        /// Approximately standard normal: the sum of 12 uniforms minus 6 (mean 0, variance 1).
-        pub fn normal(&mut self) -> f64 {
-            (0..12).map(|_| self.unit()).sum::<f64>() - 6.0
-        }
-    }
+    pub use crate::util::hash::SplitMix as SplitMix64;
 
     /// Positive "true" coefficients of a plausible size (seconds; loosely Table 2 ×1e-3 with positive
     /// intercepts), used to synthesise measurements.
@@ -262,13 +236,5 @@ mod tests {
         assert_eq!(row_rb(&q), [250.0, 20.0, 30.0, 40.0, 10.0]);
         assert_eq!(row(4, &q), vec![250.0, 20.0, 30.0, 40.0, 10.0]);
         assert_eq!(row(2, &q), row(3, &q));
-    }
-
-    #[test]
-    fn splitmix64_reference_values() {
-        // First outputs of splitmix64 seeded with 1234567 (the reference implementation's test vector).
-        let mut g = testutil::SplitMix64(1234567);
-        assert_eq!(g.next_u64(), 6457827717110365317);
-        assert_eq!(g.next_u64(), 3203168211198807973);
     }
 }

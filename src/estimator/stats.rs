@@ -28,28 +28,7 @@ pub struct Evaluation {
     pub samples: usize,
 }
 
-/// Median of `v` (the mean of the two middle values for an even length); NaN for an empty slice. Values
-/// are ordered by `f64::total_cmp`.
-pub fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
-}
-
-/// Median absolute deviation: median(|v_i − median(v)|), unscaled; NaN for an empty slice.
-pub fn mad(v: &[f64]) -> f64 {
-    let m = median(v);
-    let d: Vec<f64> = v.iter().map(|x| (x - m).abs()).collect();
-    median(&d)
-}
+pub use crate::util::stats::{mad, median};
 
 fn part_stats(v: &[f64]) -> PartStats {
     PartStats {

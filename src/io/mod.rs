@@ -1,8 +1,8 @@
-//! Output: `summary.json`, the CSV time series and VTK files for ParaView.
+//! Output: `summary.json`, the CSV time series and interval table, VTK files for ParaView and the PNG
+//! figures.
 
+pub mod intervals;
 pub mod plots;
-pub mod plots_balance;
-pub mod plots_sweep;
 pub mod series;
 pub mod summary;
 pub mod vtk;

@@ -2,7 +2,7 @@
 //! `particles.csv`: the rigid bodies' (step, time, bodies, kinetic energy, max speed, contacts, max penetration).
 
 use crate::error::{io_err, Result};
-use crate::sim::Diagnostics;
+use crate::physics::simulation::Diagnostics;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -38,7 +38,7 @@ impl Series {
     }
 
     /// Flushes to disk.
-    pub fn finish(mut self) -> Result<()> {
+    pub fn flush(&mut self) -> Result<()> {
         self.w.flush().map_err(|e| io_err(&self.path, e))
     }
 }
@@ -92,7 +92,7 @@ impl ParticleSeries {
     }
 
     /// Flushes to disk.
-    pub fn finish(mut self) -> Result<()> {
+    pub fn flush(&mut self) -> Result<()> {
         self.w.flush().map_err(|e| io_err(&self.path, e))
     }
 }

@@ -14,12 +14,13 @@
 //! the cells having the fluid bit (1). Fluid cells hold 1, or 3 next to a boundary, while walls (4, 8) and
 //! outside cells (16) lack that bit, so Threshold on `flags` with the range 1 to 3 shows only the fluid.
 
+use crate::util::fs::{tmp_beside, write_atomic_to};
 use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 /// One block's cell data for one output step. Arrays are interior cells only, x fastest, then y, then z;
-/// length = size[0]*size[1]*size[2].
+/// length = `size[0] * size[1] * size[2]`.
 pub struct VtkPiece<'a> {
     /// Block identifier; names the file `block_<id:05>.vti`. Must be unique within a step.
     pub block_id: usize,
@@ -145,22 +146,9 @@ fn check_piece(p: &VtkPiece) -> io::Result<()> {
 }
 
 /// Writes `path` through `path.tmp`, renaming into place only once everything was written.
+/// Writes `path` through `path.tmp` and a rename ([`write_atomic_to`]).
 fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>) -> io::Result<()> {
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let result = File::create(&tmp).and_then(|f| {
-        let mut w = BufWriter::new(f);
-        body(&mut w)?;
-        w.flush()
-    });
-    match result.and_then(|()| fs::rename(&tmp, path)) {
-        Ok(()) => Ok(()),
-        Err(e) => {
-            let _ = fs::remove_file(&tmp);
-            Err(e)
-        }
-    }
+    write_atomic_to(path, &tmp_beside(path), false, body).map_err(|(_, e)| e)
 }
 
 fn write_vti(w: &mut impl Write, p: &VtkPiece) -> io::Result<()> {

@@ -2,12 +2,17 @@
 //! `sweep`) and the particle tasks (`map`, `reconstruct`, `forces`, `rb`, `rb_sync`) with the edges the
 //! module docs of [`super`] list.
 
-use super::*;
+use super::kinds::{spec, Payload, TaskKind};
+use super::messages::Outgoing;
+use crate::physics::block::Block;
+use crate::physics::particles::Particles;
+use blockflow_kernels::Real;
+use blockflow_scheduler::{GraphBuilder, TaskId};
 
 /// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
 /// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps. Edges as documented in
-/// [`crate::particles::tasks`] and [`crate::coupling::tasks`]. With `no_skip` every block counts as
+/// [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
 /// active and gets `map`/`reconstruct` even without fluid.
 #[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
 pub(super) fn add_particle_tasks<T: Real>(
@@ -23,12 +28,7 @@ pub(super) fn add_particle_tasks<T: Real>(
     let nb = parts.blocks.len();
     let s = parts.subcycles;
     let active: Vec<usize> = (0..nb).filter(|&b| no_skip || parts.active[b]).collect();
-    let spec = |b: usize, part: u8, payload: u32| TaskSpec {
-        owner: owners[b],
-        part,
-        block: b as u32,
-        payload,
-    };
+    let task = |b: usize, payload: Payload| spec(owners[b], b, payload);
     // Receivers of each block's interior layers inside the same process (their comm reads it directly).
     let mut local_receivers: Vec<Vec<usize>> = vec![Vec::new(); nb];
     for blk in blocks {
@@ -44,8 +44,8 @@ pub(super) fn add_particle_tasks<T: Real>(
         if coupled {
             let mut maps: Vec<Option<TaskId>> = vec![None; nb];
             for &b in active.iter().filter(|&&b| no_skip || blocks[b].fluid_cells > 0) {
-                let m = g.add(spec(b, PART_MAP, payload(kk, KIND_MAP)));
-                let r = g.add(spec(b, PART_RECON, payload(kk, KIND_RECON)));
+                let m = g.add(task(b, Payload::new(TaskKind::Map, kk)));
+                let r = g.add(task(b, Payload::new(TaskKind::Reconstruct, kk)));
                 g.edge(m, r);
                 for &n in &parts.blocks[b].near {
                     if let Some(sp) = sync[n] {
@@ -72,7 +72,7 @@ pub(super) fn add_particle_tasks<T: Real>(
                 maps[b] = Some(m);
             }
             for &b in &active {
-                let fo = g.add(spec(b, PART_RB, payload(kk, KIND_FORCES)));
+                let fo = g.add(task(b, Payload::new(TaskKind::Forces, kk)));
                 for &n in &parts.blocks[b].near {
                     if let Some(x) = fluid[kk * nb + n].boundary.or(maps[n]) {
                         g.edge(x, fo);
@@ -88,10 +88,10 @@ pub(super) fn add_particle_tasks<T: Real>(
             let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
             let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
             for &b in &active {
-                new_rb[b] = Some(g.add(spec(b, PART_RB, payload_sub(kk, sub, KIND_RB))));
+                new_rb[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::Rb, kk, sub))));
             }
             for &b in &active {
-                new_sync[b] = Some(g.add(spec(b, PART_RB, payload_sub(kk, sub, KIND_RB_SYNC))));
+                new_sync[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::RbSync, kk, sub))));
             }
             for &b in &active {
                 let me_rb = new_rb[b].expect("active");
@@ -142,31 +142,19 @@ pub(super) fn add_fluid_tasks<T: Real>(
             .iter()
             .filter(|b| (no_skip || b.fluid_cells > 0) && !outgoing[b.id].is_empty())
         {
-            ids[s * nb + b.id].send = Some(g.add(TaskSpec {
-                owner: owners[b.id],
-                part: PART_EXCHANGE,
-                block: b.id as u32,
-                payload: payload(s, KIND_SEND),
-            }));
+            ids[s * nb + b.id].send = Some(g.add(spec(owners[b.id], b.id, Payload::new(TaskKind::Send, s))));
         }
         for b in blocks.iter().filter(|b| no_skip || b.fluid_cells > 0) {
             let owner = owners[b.id];
-            let mk = |g: &mut GraphBuilder, part: u8, kind: u32| {
-                g.add(TaskSpec {
-                    owner,
-                    part,
-                    block: b.id as u32,
-                    payload: payload(s, kind),
-                })
-            };
+            let mk = |g: &mut GraphBuilder, kind: TaskKind| g.add(spec(owner, b.id, Payload::new(kind, s)));
             let id = &mut ids[s * nb + b.id];
             if no_skip || !b.recv.is_empty() {
-                id.comm = Some(mk(g, PART_EXCHANGE, KIND_COMM));
+                id.comm = Some(mk(g, TaskKind::Comm));
             }
             if no_skip || !b.links.is_empty() || force_boundary[b.id] {
-                id.boundary = Some(mk(g, PART_BOUNDARY, KIND_BOUNDARY));
+                id.boundary = Some(mk(g, TaskKind::Boundary));
             }
-            id.sweep = Some(mk(g, PART_LBM, KIND_SWEEP));
+            id.sweep = Some(mk(g, TaskKind::Sweep));
         }
     }
     let compute = |i: &Ids| i.boundary.or(i.sweep).expect("fluid block has a sweep");
@@ -230,12 +218,7 @@ pub(super) fn add_static_map_tasks<T: Real>(
     let nb = blocks.len();
     for s in 0..k {
         for b in blocks {
-            let t = g.add(TaskSpec {
-                owner: owners[b.id],
-                part: PART_MAP,
-                block: b.id as u32,
-                payload: payload(s, KIND_STATIC),
-            });
+            let t = g.add(spec(owners[b.id], b.id, Payload::new(TaskKind::StaticMap, s)));
             let f = &fluid[s * nb + b.id];
             if let Some(first) = f.comm.or(f.boundary).or(f.sweep) {
                 g.edge(t, first);

@@ -1,26 +1,61 @@
 //! The bookkeeping of the skip rules (DESIGN.md principle 2): which tasks a graph holds per kind and,
 //! under `run.no_skip`, which rule each extra task is owed to.
 
-use super::*;
+use super::kinds::{ByKind, Payload, TaskKind};
+use crate::config::KernelChoice;
+use crate::physics::simulation::Simulation;
+use blockflow_kernels::Real;
+use blockflow_scheduler::TaskGraph;
 
-/// The skip rules of DESIGN.md principle 2 that `run.no_skip` switches off (see the module docs):
-/// outside blocks, blocks without boundary cells, blocks without particles, static geometry mapped once,
-/// and the fused kernel.
-pub const SKIP_RULES: [&str; 5] = ["outside", "no_boundary", "no_particles", "static_map", "fused_kernel"];
-const RULE_OUTSIDE: usize = 0;
-const RULE_NO_BOUNDARY: usize = 1;
-const RULE_NO_PARTICLES: usize = 2;
-const RULE_STATIC: usize = 3;
-const RULE_FUSED: usize = 4;
-pub(super) const NO_RULE: u8 = u8::MAX;
+/// A skip rule of DESIGN.md principle 2 that `run.no_skip` switches off (see the module docs of
+/// [`super`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum SkipRule {
+    /// A block without fluid gets no task, a block without a ghost region to receive no `comm`.
+    Outside = 0,
+    /// A block without links gets no `boundary` task.
+    NoBoundary = 1,
+    /// Only blocks a body can reach get particle tasks.
+    NoParticles = 2,
+    /// Walls and planes are mapped into flags and links once, at set-up.
+    StaticMap = 3,
+    /// The sweep runs the configured kernel over the fluid runs mapped once.
+    FusedKernel = 4,
+}
+
+impl SkipRule {
+    /// Every rule, in index order.
+    pub const ALL: [SkipRule; 5] = [
+        SkipRule::Outside,
+        SkipRule::NoBoundary,
+        SkipRule::NoParticles,
+        SkipRule::StaticMap,
+        SkipRule::FusedKernel,
+    ];
+
+    /// Name in outputs (`summary.json`'s `unskipped_by_rule`, `blockflow bench skip`).
+    pub fn name(self) -> &'static str {
+        match self {
+            SkipRule::Outside => "outside",
+            SkipRule::NoBoundary => "no_boundary",
+            SkipRule::NoParticles => "no_particles",
+            SkipRule::StaticMap => "static_map",
+            SkipRule::FusedKernel => "fused_kernel",
+        }
+    }
+}
+
+/// One value per [`SkipRule`].
+pub type ByRule<V> = [V; 5];
 
 /// Task counts of one compiled graph.
 #[derive(Clone, Debug, Default)]
 pub(super) struct GraphCounts {
-    pub(super) by_kind: [u64; 10],
-    pub(super) by_rule: [u64; 5],
-    /// The rule each task is owed to (index into [`SKIP_RULES`]; `NO_RULE`: it runs with the rules on).
-    pub(super) rule_of: Vec<u8>,
+    pub(super) by_kind: ByKind<u64>,
+    pub(super) by_rule: ByRule<u64>,
+    /// The rule each task is owed to (`None`: it runs with the rules on).
+    pub(super) rule_of: Vec<Option<SkipRule>>,
 }
 
 /// Counts the tasks of a compiled graph per kind and, with `no_skip`, the work per skip rule that is
@@ -32,31 +67,32 @@ pub(super) fn count_tasks<T: Real>(
     no_skip: bool,
 ) -> GraphCounts {
     let mut c = GraphCounts {
-        rule_of: vec![NO_RULE; graph.len()],
+        rule_of: vec![None; graph.len()],
         ..Default::default()
     };
     let active = |b: usize| sim.particles.as_ref().is_some_and(|p| p.active[b]);
     for (i, spec) in graph.specs().iter().enumerate() {
-        let kind = (spec.payload & 15) as usize;
-        c.by_kind[kind] += 1;
+        let kind = Payload::of(spec).kind;
+        c.by_kind[kind.index()] += 1;
         if !no_skip {
             continue;
         }
         let blk = &sim.blocks[spec.block as usize];
         let outside = blk.fluid_cells == 0;
-        let rule = match kind as u32 {
-            KIND_COMM | KIND_BOUNDARY | KIND_SWEEP if outside => Some(RULE_OUTSIDE),
-            KIND_COMM if blk.recv.is_empty() => Some(RULE_OUTSIDE),
-            KIND_BOUNDARY if blk.links.is_empty() && !force_boundary[blk.id] => Some(RULE_NO_BOUNDARY),
-            KIND_SWEEP if sim.kernel == KernelChoice::Fused => Some(RULE_FUSED),
-            KIND_MAP | KIND_RECON | KIND_FORCES | KIND_RB | KIND_RB_SYNC if !active(blk.id) => Some(RULE_NO_PARTICLES),
-            KIND_MAP | KIND_RECON if outside => Some(RULE_OUTSIDE),
-            KIND_STATIC => Some(RULE_STATIC),
+        use TaskKind::*;
+        let rule = match kind {
+            Comm | Boundary | Sweep if outside => Some(SkipRule::Outside),
+            Comm if blk.recv.is_empty() => Some(SkipRule::Outside),
+            Boundary if blk.links.is_empty() && !force_boundary[blk.id] => Some(SkipRule::NoBoundary),
+            Sweep if sim.kernel == KernelChoice::Fused => Some(SkipRule::FusedKernel),
+            Map | Reconstruct | Forces | Rb | RbSync if !active(blk.id) => Some(SkipRule::NoParticles),
+            Map | Reconstruct if outside => Some(SkipRule::Outside),
+            StaticMap => Some(SkipRule::StaticMap),
             _ => None,
         };
         if let Some(r) = rule {
-            c.by_rule[r] += 1;
-            c.rule_of[i] = r as u8;
+            c.by_rule[r as usize] += 1;
+            c.rule_of[i] = Some(r);
         }
     }
     c

@@ -5,8 +5,8 @@
 use super::{check, kinetic_energy, ParticleScene, Scene};
 use crate::config::Config;
 use crate::error::{config_err, Result};
-use crate::geometry::{Geometry, Plane};
-use blockflow_kernels::rigid::{Body, Plane as RigidPlane};
+use crate::physics::geometry::{Geometry, WallPlane};
+use blockflow_kernels::rigid::{Body, Plane};
 use blockflow_kernels::TrtParams;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
@@ -93,7 +93,7 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
                 "scene.planes[{i}]: point, normal and velocity must be finite numbers"
             ));
         }
-        match Plane::through(p.point, p.normal, p.velocity) {
+        match WallPlane::through(p.point, p.normal, p.velocity) {
             Some(pl) => geometry.planes.push(pl),
             None => return config_err(format!("scene.planes[{i}].normal = {:?}: must not be zero", p.normal)),
         }
@@ -137,7 +137,7 @@ pub(super) fn build(s: &BoxConfig, cfg: &Config) -> Result<Scene> {
         )?;
         let mut planes = super::wall_planes(cells, periodic);
         for (i, p) in geometry.planes.iter().enumerate() {
-            planes.push(RigidPlane {
+            planes.push(Plane {
                 normal: DVec3::from(p.normal),
                 offset: p.offset,
                 id: i as u64,

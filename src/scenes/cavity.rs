@@ -7,7 +7,7 @@
 use super::{check, kinetic_energy, Scene};
 use crate::config::Config;
 use crate::error::{config_err, Result};
-use crate::geometry::{FaceWall, Geometry};
+use crate::physics::geometry::{FaceWall, Geometry};
 use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -4,7 +4,7 @@
 use super::{check, relative_l2, steady_steps, tau_or, Scene};
 use crate::config::Config;
 use crate::error::Result;
-use crate::geometry::{FaceWall, Geometry};
+use crate::physics::geometry::{FaceWall, Geometry};
 use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -3,29 +3,39 @@
 //! fixed when the resolution changes.
 
 mod box_scene;
+mod calibration;
 mod cavity;
 mod channel;
+mod collision;
 mod couette;
-mod granular;
-mod particulate;
+mod drag_array;
+mod dry;
+mod granular_box;
+mod hopper;
+mod incline;
 mod settling;
 mod taylor_green;
+mod view;
 
 use crate::config::{Config, DomainConfig};
-use crate::domain::DomainSpec;
 use crate::error::{config_err, Result};
-use crate::geometry::Geometry;
-use blockflow_kernels::rigid::{Body, Plane as RigidPlane};
+use crate::physics::domain::DomainSpec;
+use crate::physics::geometry::Geometry;
+use blockflow_kernels::rigid::{Body, Plane};
 use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
 pub use box_scene::{BoxConfig, PlaneConfig, SphereConfig};
+pub use calibration::CalibrationConfig;
 pub use cavity::CavityConfig;
 pub use channel::ChannelConfig;
+pub use collision::CollisionConfig;
 pub use couette::CouetteConfig;
-pub use granular::{CollisionConfig, GranularBoxConfig, InclineConfig};
-pub use particulate::{CalibrationConfig, DragArrayConfig, HopperConfig};
+pub use drag_array::DragArrayConfig;
+pub use granular_box::GranularBoxConfig;
+pub use hopper::HopperConfig;
+pub use incline::InclineConfig;
 pub use settling::{schiller_naumann_reynolds, SettlingSphereConfig, TenCateCase, TEN_CATE};
 pub use taylor_green::TaylorGreenConfig;
 
@@ -74,7 +84,7 @@ pub trait FluidView {
         Vec::new()
     }
     /// Hydrodynamic force and torque of the last boundary pass per body, sorted by id.
-    fn hydro_forces(&self) -> Vec<crate::coupling::BodyForce> {
+    fn hydro_forces(&self) -> Vec<crate::physics::particle_cells::BodyForce> {
         Vec::new()
     }
 }
@@ -84,7 +94,7 @@ pub struct ParticleScene {
     /// Initial bodies (ids unique).
     pub bodies: Vec<Body>,
     /// Planes bodies collide with (box walls included).
-    pub planes: Vec<RigidPlane>,
+    pub planes: Vec<Plane>,
     /// Default gravity (`particles.gravity` overrides).
     pub gravity: [f64; 3],
     /// Default restitution threshold (`particles.restitution_threshold` overrides).
@@ -93,15 +103,13 @@ pub struct ParticleScene {
     pub dt: f64,
 }
 
-/// Deterministic uniform number in [0, 1) from a seed and a counter (initial jitter and random placement
-/// of the particle scenes; the same bits on every machine).
-pub(crate) fn seeded_unit(seed: u64, k: u64) -> f64 {
-    let h = crate::sim::mix(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ k);
-    (h >> 11) as f64 / (1u64 << 53) as f64
+/// Default `scene.seed` of the scenes with random placement or jitter.
+fn default_seed() -> u64 {
+    1
 }
 
 /// The rigid planes of the walls on the non-periodic faces of a box of `cells` (walls at 0 and L).
-pub fn wall_planes(cells: [usize; 3], periodic: [bool; 3]) -> Vec<RigidPlane> {
+pub fn wall_planes(cells: [usize; 3], periodic: [bool; 3]) -> Vec<Plane> {
     let mut out = Vec::new();
     for a in 0..3 {
         if periodic[a] {
@@ -111,8 +119,8 @@ pub fn wall_planes(cells: [usize; 3], periodic: [bool; 3]) -> Vec<RigidPlane> {
         n[a] = 1.0;
         let mut far = glam::DVec3::ZERO;
         far[a] = cells[a] as f64;
-        out.push(RigidPlane::through(1000 + 2 * a as u64, glam::DVec3::ZERO, n));
-        out.push(RigidPlane::through(1001 + 2 * a as u64, far, -n));
+        out.push(Plane::through(1000 + 2 * a as u64, glam::DVec3::ZERO, n));
+        out.push(Plane::through(1001 + 2 * a as u64, far, -n));
     }
     out
 }
@@ -217,13 +225,13 @@ pub fn build(cfg: &Config) -> Result<Scene> {
         SceneConfig::TaylorGreen(s) => taylor_green::build(s, cfg),
         SceneConfig::Cavity(s) => cavity::build(s, cfg),
         SceneConfig::Box(s) => box_scene::build(s, cfg),
-        SceneConfig::GranularBox(s) => granular::build_granular_box(s, cfg),
-        SceneConfig::Incline(s) => granular::build_incline(s, cfg),
-        SceneConfig::Collision(s) => granular::build_collision(s, cfg),
-        SceneConfig::DragArray(s) => particulate::build_drag_array(s, cfg),
+        SceneConfig::GranularBox(s) => granular_box::build(s, cfg),
+        SceneConfig::Incline(s) => incline::build(s, cfg),
+        SceneConfig::Collision(s) => collision::build(s, cfg),
+        SceneConfig::DragArray(s) => drag_array::build(s, cfg),
         SceneConfig::SettlingSphere(s) => settling::build(s, cfg),
-        SceneConfig::Hopper(s) => particulate::build_hopper(s, cfg),
-        SceneConfig::Calibration(s) => particulate::build_calibration(s, cfg),
+        SceneConfig::Hopper(s) => hopper::build(s, cfg),
+        SceneConfig::Calibration(s) => calibration::build(s, cfg),
     }
 }
 

@@ -18,7 +18,7 @@
 use super::{check, check_extent, wall_planes, ParticleScene, Scene, Units};
 use crate::config::Config;
 use crate::error::{config_err, Result};
-use crate::geometry::Geometry;
+use crate::physics::geometry::Geometry;
 use blockflow_kernels::rigid::Body;
 use blockflow_kernels::TrtParams;
 use glam::DVec3;

@@ -9,7 +9,7 @@
 use super::{check, kinetic_energy, relative_l2, tau_or, Scene};
 use crate::config::Config;
 use crate::error::Result;
-use crate::geometry::Geometry;
+use crate::physics::geometry::Geometry;
 use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -52,26 +52,17 @@
 //! the continuation tests prove it bitwise), the static block structure (segments, links, receive lists,
 //! neighbour lists and planes of the rigid-body bookkeeping: rebuilt from the geometry, which `flags`
 //! checks), the other parity's published list (stale: overwritten by the next sub-step before anyone
-//! reads it; the decoder clears it), and the global particle state in [`crate::particles::Particles`]:
+//! reads it; the decoder clears it), and the global particle state in [`crate::physics::particles::Particles`]:
 //! `active` (recomputed before every graph run), `counters` (run totals) and pending errors. A
 //! checkpoint must store `counters` beside its blocks if it wants them continued.
 
-use crate::block::Block;
-use crate::coupling::{BodyForce, MapBody, ParticleCells, ParticleLink};
-use crate::particles::{Delta, Published, Work};
-use crate::sim::Simulation;
-use blockflow_kernels::d3q19::Q;
-use blockflow_kernels::rigid::Body;
-use blockflow_kernels::sweep::Segment;
-use blockflow_kernels::{Layout, Real};
-use glam::{DQuat, DVec3};
 use std::fmt;
 
 mod read;
 mod write;
 
+use crate::util::bytes::Reader;
 pub use read::decode_block;
-use read::Reader;
 pub use write::{encode_block, encoded_len};
 
 /// Version of the block format written by [`encode_block`]; the decoder accepts only this one.

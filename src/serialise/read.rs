@@ -1,71 +1,48 @@
 //! Reading one block in the format of [`super`] back into a simulation.
 
-use super::*;
+use super::{
+    checksum, peek_header, FormatError, BODIES, BODY_BYTES, BODY_FORCE_BYTES, FLAGS, HEADER_LEN, OVERLAY,
+    PARTICLE_STATE, PDF,
+};
+use crate::physics::particle_cells::{BodyForce, MapBody, ParticleCells, ParticleLink};
+use crate::physics::particles::{Delta, Published, Work};
+use crate::physics::simulation::Simulation;
+use crate::util::bytes::{ReadError, Reader};
+use blockflow_kernels::d3q19::Q;
+use blockflow_kernels::rigid::Body;
+use blockflow_kernels::sweep::Segment;
+use blockflow_kernels::{Layout, Real};
+use glam::{DQuat, DVec3};
 
-pub(super) struct Reader<'a> {
-    b: &'a [u8],
-    pos: usize,
-    section: &'static str,
+impl From<ReadError> for FormatError {
+    fn from(e: ReadError) -> Self {
+        FormatError::Malformed(e.0)
+    }
 }
 
-impl<'a> Reader<'a> {
-    pub(super) fn new(b: &'a [u8], section: &'static str) -> Self {
-        Reader { b, pos: 0, section }
-    }
-    pub(super) fn bad(&self, what: impl fmt::Display) -> FormatError {
-        FormatError::Malformed(format!("section {}: {what}", self.section))
-    }
-    pub(super) fn take(&mut self, n: usize) -> Result<&'a [u8], FormatError> {
-        if self.b.len() - self.pos < n {
-            return Err(self.bad(format_args!("ends after {} of {} bytes", self.b.len(), self.pos + n)));
-        }
-        let s = &self.b[self.pos..self.pos + n];
-        self.pos += n;
-        Ok(s)
-    }
-    pub(super) fn u8(&mut self) -> Result<u8, FormatError> {
-        Ok(self.take(1)?[0])
-    }
-    pub(super) fn u32(&mut self) -> Result<u32, FormatError> {
-        Ok(u32::from_le_bytes(self.take(4)?.try_into().expect("4 bytes")))
-    }
-    pub(super) fn u64(&mut self) -> Result<u64, FormatError> {
-        Ok(u64::from_le_bytes(self.take(8)?.try_into().expect("8 bytes")))
-    }
-    pub(super) fn f64(&mut self) -> Result<f64, FormatError> {
-        Ok(f64::from_bits(self.u64()?))
-    }
-    pub(super) fn v3(&mut self) -> Result<DVec3, FormatError> {
+/// What the block format reads beyond the primitives: vectors, cells, bodies.
+pub(super) trait BlockReader {
+    /// A vector of 3 × f64.
+    fn v3(&mut self) -> Result<DVec3, ReadError>;
+    /// A layout-free cell index as an element index; `interior` asks for an interior cell.
+    fn cell(&mut self, l: &Layout, interior: bool) -> Result<usize, ReadError>;
+    /// Element index of the layout-free cell index `c`.
+    fn cell_at(&self, c: u32, l: &Layout, interior: bool) -> Result<usize, ReadError>;
+    /// A body with every field.
+    fn body(&mut self) -> Result<Body, ReadError>;
+    /// A body force (id, force, torque).
+    fn body_force(&mut self) -> Result<BodyForce, ReadError>;
+}
+
+impl BlockReader for Reader<'_> {
+    fn v3(&mut self) -> Result<DVec3, ReadError> {
         Ok(DVec3::new(self.f64()?, self.f64()?, self.f64()?))
     }
-    pub(super) fn bool(&mut self) -> Result<bool, FormatError> {
-        match self.u8()? {
-            0 => Ok(false),
-            1 => Ok(true),
-            v => Err(self.bad(format_args!("flag byte {v}"))),
-        }
-    }
-    /// An entry count, checked against the bytes left (each entry takes at least `entry` bytes).
-    pub(super) fn count(&mut self, entry: usize) -> Result<usize, FormatError> {
-        let n = self.u32()? as usize;
-        if n.saturating_mul(entry) > self.b.len() - self.pos {
-            return Err(self.bad(format_args!("{n} entries of {entry} bytes do not fit")));
-        }
-        Ok(n)
-    }
-    pub(super) fn finish(&self) -> Result<(), FormatError> {
-        if self.pos != self.b.len() {
-            return Err(self.bad(format_args!("{} bytes left over", self.b.len() - self.pos)));
-        }
-        Ok(())
-    }
-    /// A layout-free cell index as an element index; `interior` asks for an interior cell.
-    pub(super) fn cell(&mut self, l: &Layout, interior: bool) -> Result<usize, FormatError> {
+    fn cell(&mut self, l: &Layout, interior: bool) -> Result<usize, ReadError> {
         let c = self.u32()?;
         self.cell_at(c, l, interior)
     }
-    /// Element index of the layout-free cell index `c`.
-    pub(super) fn cell_at(&self, c: u32, l: &Layout, interior: bool) -> Result<usize, FormatError> {
+    fn cell_at(&self, c: u32, l: &Layout, interior: bool) -> Result<usize, ReadError> {
         let c = c as usize;
         let [fx, fy, fz] = l.full();
         let (x, y, z) = (c % fx, (c / fx) % fy, c / (fx * fy));
@@ -75,7 +52,7 @@ impl<'a> Reader<'a> {
         }
         Ok(l.idx(x, y, z))
     }
-    pub(super) fn body(&mut self) -> Result<Body, FormatError> {
+    fn body(&mut self) -> Result<Body, ReadError> {
         let id = self.u64()?;
         let position = self.v3()?;
         let orientation = DQuat::from_xyzw(self.f64()?, self.f64()?, self.f64()?, self.f64()?);
@@ -94,7 +71,7 @@ impl<'a> Reader<'a> {
             torque_prev: self.v3()?,
         })
     }
-    pub(super) fn body_force(&mut self) -> Result<BodyForce, FormatError> {
+    fn body_force(&mut self) -> Result<BodyForce, ReadError> {
         Ok(BodyForce {
             id: self.u64()?,
             force: self.v3()?,
@@ -136,7 +113,7 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
             let v = r.u64()?;
             let n = r.u32()? as usize;
             if n > total - seen {
-                return Err(r.bad("owner runs cover more than the block"));
+                return Err(r.bad("owner runs cover more than the block").into());
             }
             seen += n;
             for _ in 0..n {
@@ -153,7 +130,7 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
             }
         }
         if seen != total {
-            return Err(r.bad(format_args!("owner runs cover {seen} of {total} cells")));
+            return Err(r.bad(format_args!("owner runs cover {seen} of {total} cells")).into());
         }
         pc.owner = owner;
     }
@@ -167,7 +144,7 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
         let start = r.cell(l, true)?;
         let len = r.u32()? as usize;
         if len == 0 || l.coords(start)[0] + len > fx - 1 {
-            return Err(r.bad(format_args!("segment of {len} cells leaves its row")));
+            return Err(r.bad(format_args!("segment of {len} cells leaves its row")).into());
         }
         pc.segments.push(Segment { start, len });
     }
@@ -194,7 +171,9 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
             c => Some(r.cell_at(c, l, false)?),
         };
         if q == 0 || q as usize >= Q || body as usize >= pc.bodies.len() {
-            return Err(r.bad(format_args!("link with direction {q} into body slot {body}")));
+            return Err(r
+                .bad(format_args!("link with direction {q} into body slot {body}"))
+                .into());
         }
         pc.links.push(ParticleLink {
             fluid,
@@ -234,7 +213,7 @@ fn read_bodies(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> 
         list.bodies.push(r.body()?);
         let h = r.u32()?;
         if h as usize >= blocks {
-            return Err(r.bad(format_args!("home block {h} of {blocks}")));
+            return Err(r.bad(format_args!("home block {h} of {blocks}")).into());
         }
         list.homes.push(h);
     }
@@ -250,7 +229,9 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         bodies.push(r.body()?);
     }
     if locals > bodies.len() {
-        return Err(r.bad(format_args!("{locals} locals among {} bodies", bodies.len())));
+        return Err(r
+            .bad(format_args!("{locals} locals among {} bodies", bodies.len()))
+            .into());
     }
     let n = r.count(56)?;
     let mut deltas = Vec::with_capacity(n);
@@ -339,10 +320,11 @@ fn open<'a, T: Real>(sim: &Simulation<T>, id: usize, bytes: &'a [u8]) -> Result<
     let mut table = Vec::with_capacity(n);
     for _ in 0..n {
         let len = r.u8()? as usize;
-        let name = std::str::from_utf8(r.take(len)?).map_err(|_| r.bad("section name is not UTF-8"))?;
+        let name =
+            std::str::from_utf8(r.take(len)?).map_err(|_| FormatError::from(r.bad("section name is not UTF-8")))?;
         table.push((name, r.u64()?));
     }
-    let mut at = HEADER_LEN - 4 + r.pos;
+    let mut at = HEADER_LEN - 4 + r.pos();
     let mut out = Vec::with_capacity(n);
     for (name, len) in table {
         let len = usize::try_from(len).unwrap_or(usize::MAX);

@@ -1,48 +1,16 @@
 //! Writing one block in the format of [`super`].
 
-use super::*;
+use super::{checksum, BLOCK_FORMAT_VERSION, BODIES, FLAGS, HEADER_LEN, MAGIC, OVERLAY, PARTICLE_STATE, PDF};
+use crate::physics::block::Block;
+use crate::physics::particle_cells::{BodyForce, ParticleCells};
+use crate::physics::particles::{Published, Work};
+use crate::physics::simulation::Simulation;
+use crate::util::bytes::{put_f64, put_u32, put_u64, put_u8, Counter, Sink};
+use blockflow_kernels::d3q19::Q;
+use blockflow_kernels::rigid::Body;
+use blockflow_kernels::{Layout, Real};
+use glam::DVec3;
 
-/// Where encoded bytes go: a byte vector, or a counter for [`encoded_len`].
-trait Sink {
-    fn put(&mut self, b: &[u8]);
-    /// Announces `n` bytes of bulk data; returns true when the sink only counts (the caller skips them).
-    fn bulk(&mut self, n: usize) -> bool;
-}
-
-impl Sink for Vec<u8> {
-    fn put(&mut self, b: &[u8]) {
-        self.extend_from_slice(b);
-    }
-    fn bulk(&mut self, n: usize) -> bool {
-        self.reserve(n);
-        false
-    }
-}
-
-struct Counter(usize);
-
-impl Sink for Counter {
-    fn put(&mut self, b: &[u8]) {
-        self.0 += b.len();
-    }
-    fn bulk(&mut self, n: usize) -> bool {
-        self.0 += n;
-        true
-    }
-}
-
-fn put_u8(s: &mut impl Sink, v: u8) {
-    s.put(&[v]);
-}
-fn put_u32(s: &mut impl Sink, v: u32) {
-    s.put(&v.to_le_bytes());
-}
-fn put_u64(s: &mut impl Sink, v: u64) {
-    s.put(&v.to_le_bytes());
-}
-fn put_f64(s: &mut impl Sink, v: f64) {
-    s.put(&v.to_bits().to_le_bytes());
-}
 fn put_v3(s: &mut impl Sink, v: DVec3) {
     for x in v.to_array() {
         put_f64(s, x);

@@ -1,7 +1,9 @@
 //! Table 3 of the paper from the counterfactual strategies: relative run time, balancing fraction, mean
 //! edge cut and median load imbalance per strategy; as markdown, CSV and `study.json`.
 
-use super::{Strategy, StrategyInterval};
+use super::Candidate;
+use crate::metrics::interval::IntervalStats;
+use crate::util::stats::median_finite;
 use serde::Serialize;
 
 /// One row of Table 3.
@@ -35,23 +37,22 @@ pub struct Row {
     /// Seconds of balancing.
     pub balance_seconds: f64,
     /// The strategy's intervals.
-    pub intervals: Vec<StrategyInterval>,
+    pub intervals: Vec<IntervalStats>,
 }
 
 /// Median of the finite values (NaN when none).
 pub fn median(v: impl Iterator<Item = f64>) -> f64 {
-    let s: Vec<f64> = v.filter(|x| x.is_finite()).collect();
-    crate::estimator::stats::median(&s)
+    median_finite(&v.collect::<Vec<f64>>())
 }
 
 /// Table 3 rows, relative to the strategy named `none` (or the first one).
-pub fn rows(strategies: &[Strategy]) -> Vec<Row> {
-    let mut rows: Vec<Row> = strategies
+pub fn rows(candidates: &[Candidate]) -> Vec<Row> {
+    let mut rows: Vec<Row> = candidates
         .iter()
         .map(|s| {
-            let iv = &s.intervals;
-            let bal: f64 = iv.iter().map(|i| i.balance_seconds()).sum();
-            let graph = iv.iter().map(|i| i.graph_seconds).sum::<f64>() + bal;
+            let iv = s.intervals();
+            let bal: f64 = iv.iter().map(|i| i.balance_seconds).sum();
+            let graph = iv.iter().map(|i| i.modeled_seconds).sum::<f64>() + bal;
             let bsp = iv.iter().map(|i| i.bsp_seconds).sum::<f64>() + bal;
             let unrel: Vec<u64> = iv.iter().filter_map(|i| i.migrated_unrelabelled).collect();
             Row {
@@ -72,7 +73,7 @@ pub fn rows(strategies: &[Strategy]) -> Vec<Row> {
                 graph_seconds: graph,
                 bsp_seconds: bsp,
                 balance_seconds: bal,
-                intervals: iv.clone(),
+                intervals: iv.to_vec(),
             }
         })
         .collect();
@@ -157,27 +158,35 @@ pub fn csv(rows: &[Row]) -> String {
 mod tests {
     use super::*;
 
-    fn strategy(name: &str, secs: &[f64], li: &[f64]) -> Strategy {
-        let mut s = Strategy::new(name, None, false, vec![0], &[], 1);
-        s.intervals = secs
-            .iter()
-            .zip(li)
-            .map(|(&g, &l)| StrategyInterval {
-                graph_seconds: g,
-                bsp_seconds: 2.0 * g,
-                imbalance: l,
-                predicted_imbalance: f64::NAN,
-                ..Default::default()
-            })
-            .collect();
-        s
+    fn candidate(name: &str, secs: &[f64], li: &[f64]) -> Candidate {
+        let m = crate::metrics::cost_model::Machine {
+            processes: 1,
+            threads: 1,
+            global: false,
+            comm: Default::default(),
+        };
+        let mut c = Candidate::new(name, None, vec![0], &[], m);
+        let d = crate::physics::domain::DomainSpec {
+            blocks: [1, 1, 1],
+            block_size: [4, 4, 4],
+            periodic: [false; 3],
+        };
+        for (i, (&g, &l)) in secs.iter().zip(li).enumerate() {
+            let cur = c.log.current_mut();
+            cur.modeled_seconds = g;
+            cur.bsp_seconds = 2.0 * g;
+            let iv = c.log.close(i as u64 + 1, &[1.0], &d).unwrap();
+            iv.imbalance = l;
+            iv.predicted_imbalance = f64::NAN;
+        }
+        c
     }
 
     #[test]
     fn relative_runtime_and_medians() {
         let rows = rows(&[
-            strategy("none", &[1.0, 1.0, 2.0], &[0.6, 0.5, 0.7]),
-            strategy("hilbert", &[1.0, 1.0, 1.0], &[0.1, 0.3, 0.2]),
+            candidate("none", &[1.0, 1.0, 2.0], &[0.6, 0.5, 0.7]),
+            candidate("hilbert", &[1.0, 1.0, 1.0], &[0.1, 0.3, 0.2]),
         ]);
         assert_eq!(rows[0].relative_runtime, 0.0);
         assert!((rows[1].relative_runtime + 25.0).abs() < 1e-12);

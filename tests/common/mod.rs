@@ -1,10 +1,12 @@
 //! Helpers shared by the integration tests.
 #![allow(dead_code)]
 
+use blockflow::app::run::{self, RunOptions};
 use blockflow::config::{self, Config, Precision};
-use blockflow::runner::{self, RunOptions};
+use blockflow::physics::simulation::Simulation;
 use blockflow::scenes;
-use blockflow::sim::Simulation;
+use blockflow::timeloop::setup::build_sim;
+use blockflow::timeloop::{Recording, TimeLoop};
 use std::path::PathBuf;
 
 /// Parses a scene file from configs/ with overrides.
@@ -31,7 +33,7 @@ pub fn run(file: &str, sets: &[&str]) -> blockflow::io::summary::Summary {
         ))),
         ..Default::default()
     };
-    runner::run(&c, &opts).expect("run succeeds")
+    run::run(&c, &opts).expect("run succeeds")
 }
 
 /// Builds an f64 simulation of a scene without running it.
@@ -39,5 +41,24 @@ pub fn sim64(file: &str, sets: &[&str]) -> Simulation<f64> {
     let c = cfg(file, sets);
     assert_eq!(c.fluid.precision, Precision::F64);
     let s = scenes::build(&c).expect("scene");
-    runner::build_sim::<f64>(&c, &s).expect("sim")
+    build_sim::<f64>(&c, &s).expect("sim")
+}
+
+/// The time loop of a configuration (f64), as `blockflow run` builds it.
+pub fn timeloop_of(c: &Config) -> TimeLoop<f64> {
+    let s = scenes::build(c).expect("scene");
+    TimeLoop::<f64>::from_config(c, &s, Recording::default()).expect("time loop")
+}
+
+/// The time loop of a scene file from configs/ with overrides (f64).
+pub fn timeloop(file: &str, sets: &[&str]) -> TimeLoop<f64> {
+    timeloop_of(&cfg(file, sets))
+}
+
+/// Both checksums of a simulation (particles: 0 without bodies).
+pub fn checksums(sim: &Simulation<f64>) -> (u64, u64) {
+    (
+        sim.checksum(),
+        sim.particles.as_ref().map_or(0, |p| p.checksum(sim.step)),
+    )
 }

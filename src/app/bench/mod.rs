@@ -1,0 +1,115 @@
+//! `blockflow bench ...`: the benchmarks that print tables, one module each.
+
+pub mod accuracy;
+pub mod balance;
+pub mod kernel;
+pub mod rigid;
+pub mod scheduler;
+pub mod skip;
+
+use crate::error::{Error, Result};
+use clap::Subcommand;
+use std::path::PathBuf;
+
+/// Benchmarks.
+#[derive(Subcommand, Debug)]
+pub enum BenchKind {
+    /// Per-task overhead and the fluid step through the task graph vs a plain loop on the same threads.
+    Scheduler {
+        /// Short timings.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Rigid-body sub-step: time and contacts per second for 100 … 20 000 spheres, grid vs all pairs.
+    Rigid {
+        /// Short timings.
+        #[arg(long)]
+        quick: bool,
+    },
+    /// Copy-bandwidth roofline and the fused kernel's MLUPS (f64, f32; 1 and 2 threads).
+    Kernel {
+        /// Short timings.
+        #[arg(long)]
+        quick: bool,
+        /// Cells per block edge.
+        #[arg(long, default_value_t = 128)]
+        size: usize,
+        /// Thread counts, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "1,2")]
+        threads: Vec<usize>,
+    },
+    /// Cost of the balancing step: curve keys and splits for 100 000 blocks, diffusive and METIS on the
+    /// hopper's 288 blocks for 32 processes.
+    Balance,
+    /// Skipped work, measured: channel, calibration, hopper-small and granular_box with the skip rules and
+    /// with --no-skip; tasks per kind, tasks skipped per rule, wall time saved, checksums compared.
+    Skip {
+        /// The CI size (under 3 minutes on 2 cores).
+        #[arg(long)]
+        quick: bool,
+        /// Output folder (skip.csv, skip.md and the runs).
+        #[arg(long, default_value = "out/skip")]
+        out: PathBuf,
+    },
+    /// Run time against error: channel, couette, Taylor-Green and the drag array (CLI and SBB, three solid
+    /// fractions) over resolution, f64 and f32; Pareto front per scene.
+    Accuracy {
+        /// The CI size (about 3 minutes).
+        #[arg(long)]
+        quick: bool,
+        /// Output folder (one sweep per scene).
+        #[arg(long, default_value = "out/accuracy")]
+        out: PathBuf,
+    },
+}
+
+/// Runs a benchmark and prints its table.
+pub fn execute(which: BenchKind) -> Result<()> {
+    let print = super::print_out;
+    match which {
+        BenchKind::Accuracy { quick, out } => {
+            let cases = accuracy::run(quick, &out, &accuracy::configs_dir())?;
+            print(&format!(
+                "{}results in {}\n",
+                accuracy::to_markdown(&cases),
+                out.display()
+            ));
+            Ok(())
+        }
+        BenchKind::Skip { quick, out } => {
+            let report = skip::run(quick, &out, &accuracy::configs_dir())?;
+            print(&format!("{}results in {}\n", skip::to_markdown(&report), out.display()));
+            if report.iter().any(|s| !s.checksums_equal()) {
+                return Err(Error::Config(
+                    "bench skip: the checksums with and without --no-skip differ (see the table)".into(),
+                ));
+            }
+            Ok(())
+        }
+        BenchKind::Balance => {
+            print(&balance::scale_table());
+            Ok(())
+        }
+        BenchKind::Scheduler { quick } => {
+            let rows = scheduler::run(quick, &[(1, 1), (1, 2), (2, 1)])?;
+            print(&scheduler::to_markdown(&rows));
+            Ok(())
+        }
+        BenchKind::Rigid { quick } => {
+            let report = rigid::run(quick)?;
+            print(&rigid::to_markdown(&report));
+            Ok(())
+        }
+        BenchKind::Kernel { quick, size, threads } => {
+            if size < 8 || threads.is_empty() || threads.contains(&0) {
+                return Err(Error::Config(
+                    "bench kernel: --size must be at least 8 and --threads positive".into(),
+                ));
+            }
+            let opts = kernel::KernelBenchOptions { quick, size, threads };
+            let report = kernel::run(&opts);
+            print(&format!("{}\n", report.to_markdown()));
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,429 @@
+//! `blockflow run`: builds a scene, steps it through the time loop with its outputs attached as
+//! observers, writes summary.json, series.csv, intervals.csv and the optional VTK, trace and
+//! checkpoints.
+
+mod outputs;
+pub mod resources;
+mod summary;
+
+use crate::app::signals;
+use crate::checkpoint::{self, Checkpoint};
+use crate::config::{Config, Precision};
+use crate::error::{Error, Result};
+use crate::io::summary::Summary;
+use crate::physics::simulation::Simulation;
+use crate::scenes::{self, FluidView, Scene};
+use crate::timeloop::{Flow, Recording, RunEnd, TimeLoop};
+use crate::util::fs::{ensure_writable, write_atomic};
+use blockflow_kernels::rigid::Body;
+use blockflow_kernels::Real;
+use outputs::{CheckpointWriter, Progress, SeriesWriter, StopOnSignal, TrajectoryRecorder, VtkWriter};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// Run a scene and write summary.json, series.csv (and VTK with --vtk) to the output folder. SIGINT /
+/// SIGTERM stop the run at the end of the graph run under way, write a checkpoint and summary.json
+/// (`"status": "interrupted"`) and exit with 128 + the signal number; a second signal ends it at once.
+#[derive(clap::Args, Debug)]
+#[allow(rustdoc::invalid_html_tags)] // the doc comments are the command-line help: `<step>` is literal there
+pub struct RunArgs {
+    /// Scene file (TOML), e.g. configs/channel.toml. With --restart it may be left out; if given, it
+    /// must describe the checkpoint's physics.
+    #[arg(required_unless_present = "restart")]
+    pub scene: Option<PathBuf>,
+    /// Override a key of the scene file: --set fluid.tau=0.6 (repeatable; same dotted path as the file).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
+    /// Output folder (default: run.out, else out/<scene file name>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Number of time steps (default: run.steps, else the scene's own).
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Write VTK output (fluid.pvd) every N steps.
+    #[arg(long, value_name = "EVERY")]
+    pub vtk: Option<u64>,
+    /// Virtual processes P (processes.count).
+    #[arg(long)]
+    pub processes: Option<usize>,
+    /// Threads per process T (processes.threads_per_process).
+    #[arg(long)]
+    pub threads_per_process: Option<usize>,
+    /// Pinning: compact, scatter, none or a core list such as 0,1 (processes.pin).
+    #[arg(long)]
+    pub pin: Option<String>,
+    /// Assignment strategy: none, hilbert, morton, diffusive, metis (balance.strategy).
+    #[arg(long)]
+    pub balance: Option<String>,
+    /// Steps per balancing / measurement interval (balance.interval).
+    #[arg(long)]
+    pub interval: Option<u64>,
+    /// Write a Chrome trace (Perfetto, chrome://tracing) of every task to FILE.
+    #[arg(long, value_name = "FILE")]
+    pub trace: Option<PathBuf>,
+    /// Write a checkpoint to OUT/checkpoints/step-<step> whenever the step is a multiple of N
+    /// (run.checkpoint_every).
+    #[arg(long, value_name = "N")]
+    pub checkpoint_every: Option<u64>,
+    /// Write a checkpoint when SECONDS of wall-clock time have passed since the last one
+    /// (run.checkpoint_wall).
+    #[arg(long, value_name = "SECONDS")]
+    pub checkpoint_wall: Option<f64>,
+    /// Checkpoints to keep, the newest (run.checkpoints_kept, default 2).
+    #[arg(long, value_name = "K")]
+    pub checkpoints_kept: Option<usize>,
+    /// Continue from a checkpoint file (or the newest one in a folder or its checkpoints/ subfolder).
+    /// The configuration is the checkpoint's, with this command line's overrides of run.*,
+    /// processes.* and balance.* keys on top; the final state is bitwise the uninterrupted run's.
+    #[arg(long, value_name = "PATH")]
+    pub restart: Option<PathBuf>,
+    /// Run every task on every block: switch off the skip rules (outside blocks, blocks without
+    /// boundary cells, blocks without particles, static geometry mapped once, the fused kernel) to
+    /// measure what they save (run.no_skip = true). Slower; the results are bitwise the same.
+    #[arg(long)]
+    pub no_skip: bool,
+}
+
+impl RunArgs {
+    /// The `--set` overrides of the arguments: the command line's options are overrides of the stable
+    /// keys, checked like the file's values.
+    fn overrides(&self) -> Result<Vec<String>> {
+        let mut set = self.set.clone();
+        if let Some(n) = self.checkpoint_every {
+            set.push(format!("run.checkpoint_every={n}"));
+        }
+        if let Some(w) = self.checkpoint_wall {
+            if !w.is_finite() {
+                return Err(Error::Config(format!(
+                    "--checkpoint-wall {w}: must be a finite number of seconds > 0"
+                )));
+            }
+            set.push(format!("run.checkpoint_wall={w:?}"));
+        }
+        if let Some(k) = self.checkpoints_kept {
+            set.push(format!("run.checkpoints_kept={k}"));
+        }
+        if self.no_skip {
+            set.push("run.no_skip=true".into());
+        }
+        if let Some(p) = self.processes {
+            set.push(format!("processes.count={p}"));
+        }
+        if let Some(t) = self.threads_per_process {
+            set.push(format!("processes.threads_per_process={t}"));
+        }
+        if let Some(p) = &self.pin {
+            set.push(format!("processes.pin=\"{}\"", p.replace('"', "")));
+        }
+        if let Some(b) = &self.balance {
+            set.push(format!("balance.strategy=\"{}\"", b.replace('"', "")));
+        }
+        if let Some(i) = self.interval {
+            set.push(format!("balance.interval={i}"));
+        }
+        Ok(set)
+    }
+}
+
+/// Runs `blockflow run` and prints its one-paragraph result.
+pub fn execute(args: RunArgs) -> Result<()> {
+    if args.vtk == Some(0) {
+        return Err(Error::Config("--vtk 0: must be at least 1".into()));
+    }
+    let set = args.overrides()?;
+    let (cfg, restart) = match &args.restart {
+        Some(path) => {
+            let ck = Checkpoint::read(&checkpoint::resolve(path)?)?;
+            let cfg = checkpoint::restart_config(&ck, args.scene.as_deref(), &set)?;
+            (cfg, Some(Arc::new(ck)))
+        }
+        None => (
+            crate::config::load(
+                args.scene.as_deref().expect("clap requires SCENE without --restart"),
+                &set,
+            )?,
+            None,
+        ),
+    };
+    signals::install_handlers()?;
+    let opts = RunOptions {
+        steps: args.steps,
+        out: args.out,
+        vtk_every: args.vtk,
+        progress: true,
+        scene_path: args.scene,
+        trace: args.trace,
+        restart,
+    };
+    let dir = output_dir(&cfg, &opts);
+    let s = run(&cfg, &opts)?;
+    let mut text = format!(
+        "{}: {} steps, {} fluid cells in {} blocks, {} x {} threads, {:.2} s, {:.1} MLUPS ({})\n",
+        s.scene,
+        s.steps,
+        s.fluid_cells,
+        s.blocks,
+        s.processes,
+        s.threads_per_process,
+        s.wall_seconds,
+        s.mlups,
+        s.precision
+    );
+    for (k, v) in &s.observables {
+        text += &format!("  {k} = {v:.6e}\n");
+    }
+    let sum = match &s.checksum.particles {
+        Some(p) => format!("checksums fluid {} particles {p}", s.checksum.fluid),
+        None => format!("checksum {}", s.checksum.fluid),
+    };
+    text += &format!("  {sum}; results in {}\n", dir.display());
+    crate::app::print_out(&text);
+    Ok(())
+}
+
+/// Command-line options of `blockflow run` that override the scene file.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// `--steps`.
+    pub steps: Option<u64>,
+    /// `--out`.
+    pub out: Option<PathBuf>,
+    /// `--vtk EVERY`.
+    pub vtk_every: Option<u64>,
+    /// Show a progress bar (only when stdout is a terminal).
+    pub progress: bool,
+    /// The scene file, to name the default output folder.
+    pub scene_path: Option<PathBuf>,
+    /// `--trace FILE`: write a Chrome trace of every task.
+    pub trace: Option<PathBuf>,
+    /// `--restart PATH`: continue from this checkpoint (read and checked; the configuration must be
+    /// [`crate::checkpoint::restart_config`]'s).
+    pub restart: Option<Arc<Checkpoint>>,
+}
+
+/// The output folder a run writes to.
+pub fn output_dir(cfg: &Config, opts: &RunOptions) -> PathBuf {
+    if let Some(o) = &opts.out {
+        return o.clone();
+    }
+    if let Some(o) = &cfg.run.out {
+        return PathBuf::from(o);
+    }
+    let stem = opts
+        .scene_path
+        .as_ref()
+        .and_then(|p| p.file_stem())
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "run".to_string());
+    Path::new("out").join(stem)
+}
+
+/// Runs a configuration to the end. On an unstable run, summary.json says `"status": "unstable"` and the
+/// error is returned.
+pub fn run(cfg: &Config, opts: &RunOptions) -> Result<Summary> {
+    let scene = scenes::build(cfg)?;
+    match cfg.fluid.precision {
+        Precision::F64 => run_t::<f64>(cfg, scene, opts),
+        Precision::F32 => run_t::<f32>(cfg, scene, opts),
+    }
+}
+
+/// The simulation plus what the run recorded over time, as the scenes' observables see it.
+struct RunView<'a, T: Real> {
+    sim: &'a Simulation<T>,
+    trajectory: &'a [(f64, Body)],
+}
+
+impl<T: Real> FluidView for RunView<'_, T> {
+    fn visit(&self, f: &mut dyn FnMut([usize; 3], f64, [f64; 3])) {
+        self.sim.visit(f)
+    }
+    fn steps_taken(&self) -> u64 {
+        self.sim.step
+    }
+    fn bodies(&self) -> Vec<Body> {
+        self.sim.bodies()
+    }
+    fn hydro_forces(&self) -> Vec<crate::physics::particle_cells::BodyForce> {
+        self.sim.hydro_forces()
+    }
+    fn trajectory(&self) -> Vec<(f64, Body)> {
+        self.trajectory.to_vec()
+    }
+}
+
+/// The configuration a run's output records (effective.toml and every checkpoint): `cfg` with the
+/// resolved step count, output folder and VTK interval filled in, so that the file alone reproduces the run.
+fn effective_text(cfg: &Config, steps: u64, dir: &Path, vtk_every: Option<u64>) -> String {
+    let mut c = cfg.clone();
+    c.run.steps = Some(steps);
+    let abs = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.to_path_buf());
+    c.run.out = Some(abs.display().to_string());
+    c.run.vtk_every = vtk_every;
+    c.to_toml()
+}
+
+fn write_summary(dir: &Path, s: &Summary) -> Result<()> {
+    let text = serde_json::to_string_pretty(s).expect("summary serialises");
+    write_atomic(&dir.join("summary.json"), (text + "\n").as_bytes())
+}
+
+/// What a run writes where, settled before anything is allocated.
+struct Plan {
+    /// Total steps (the end of the run).
+    steps: u64,
+    /// The output folder.
+    dir: PathBuf,
+    /// VTK interval, if any.
+    vtk_every: Option<u64>,
+    /// The effective configuration (effective.toml, every checkpoint).
+    config_text: String,
+}
+
+/// Checks what can be checked before anything is allocated or written (the checkpoint's step, the
+/// memory estimate, the output folders), then writes effective.toml.
+fn plan(cfg: &Config, scene: &Scene, opts: &RunOptions) -> Result<Plan> {
+    let steps = opts.steps.or(cfg.run.steps).unwrap_or(scene.steps);
+    let dir = output_dir(cfg, opts);
+    if let Some(ck) = &opts.restart {
+        if ck.step > steps {
+            return Err(Error::Config(format!(
+                "run.steps = {steps}, but checkpoint {} is at step {}; ask for at least that many (--steps)",
+                ck.path.display(),
+                ck.step
+            )));
+        }
+    }
+    resources::check_memory(cfg, scene)?;
+    ensure_writable(&dir)?;
+    if cfg.run.checkpoint_every.is_some() || cfg.run.checkpoint_wall.is_some() {
+        ensure_writable(&dir.join("checkpoints"))?;
+    }
+    let _ = std::fs::remove_file(dir.join("summary.json"));
+    let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
+    let config_text = effective_text(cfg, steps, &dir, vtk_every);
+    write_atomic(&dir.join("effective.toml"), config_text.as_bytes())?;
+    Ok(Plan {
+        steps,
+        dir,
+        vtk_every,
+        config_text,
+    })
+}
+
+/// The fields of summary.json known before the first step.
+fn summary_head<T: Real>(tl: &TimeLoop<T>, cfg: &Config, scene: &Scene, opts: &RunOptions, steps: u64) -> Summary {
+    let sim = tl.sim();
+    Summary {
+        scene: scene.name.to_string(),
+        description: scene.description.clone(),
+        steps_requested: steps,
+        cells: sim.domain.total_cells(),
+        fluid_cells: sim.fluid_cells(),
+        blocks: sim.blocks.len(),
+        block_grid: sim.domain.blocks,
+        block_size: sim.domain.block_size,
+        processes: cfg.processes.count,
+        threads_per_process: cfg.processes.threads_per_process,
+        precision: T::NAME.to_string(),
+        tau: sim.params.tau,
+        magic: sim.params.magic,
+        cores: tl.pipeline().executor().cores().to_vec(),
+        restarted_from: opts.restart.as_ref().map(|c| c.path.display().to_string()),
+        restart_step: opts.restart.as_ref().map(|c| c.step),
+        units: scene.units,
+        ..Default::default()
+    }
+}
+
+/// Builds the run, attaches its outputs, steps it to the end (or a signal, or an instability), and
+/// writes what it measured.
+fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summary> {
+    let plan = plan(cfg, &scene, opts)?;
+    let (steps, dir) = (plan.steps, &plan.dir);
+    let recording = Recording {
+        trace: opts.trace.is_some(),
+        block_parts: false,
+    };
+    let mut tl = TimeLoop::<T>::from_config(cfg, &scene, recording)?;
+    if let Some(ck) = &opts.restart {
+        ck.restore_into(&mut tl)?;
+    }
+    let start_step = tl.sim().step;
+    let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
+    tl.add_observer(SeriesWriter::new(dir, tl.sim(), series_every, steps)?);
+    let trajectory = TrajectoryRecorder::new(dir, tl.sim(), scene.units).map(|r| tl.add_observer(r));
+    if let Some(every) = plan.vtk_every {
+        let w = VtkWriter::new(dir, tl.sim(), every)?;
+        tl.add_observer(w);
+    }
+    let checkpoints = tl.add_observer(CheckpointWriter::new(
+        dir.join("checkpoints"),
+        cfg,
+        plan.config_text,
+        scene.name,
+    ));
+    tl.add_observer(Progress::new(start_step, steps, opts.progress));
+    tl.add_observer(StopOnSignal);
+    let mut summary = summary_head(&tl, cfg, &scene, opts, steps);
+    let tasks_per_step = tl.tasks_per_step();
+    let outcome = match signals::interrupted() {
+        Some(_) => Ok(Flow::Stop),
+        None => tl.run_to(steps),
+    };
+    let interrupted = signals::interrupted().filter(|_| matches!(outcome, Ok(Flow::Stop)));
+    let failure = outcome.err();
+    tl.finish(&match (&failure, interrupted) {
+        (Some(e), _) => RunEnd::Failed(e),
+        (None, Some(_)) => RunEnd::Stopped,
+        (None, None) => RunEnd::Done,
+    })?;
+    if let Some(path) = &opts.trace {
+        tl.pipeline()
+            .write_trace(path)
+            .map_err(|e| crate::error::io_err(path, e))?;
+    }
+    crate::io::intervals::write(&dir.join("intervals.csv"), tl.intervals())?;
+    let loop_time = tl.stepping_seconds();
+    let done = tl.sim().step - start_step;
+    summary.wall_seconds = loop_time;
+    summary.mlups = if loop_time > 0.0 {
+        (tl.sim().fluid_cells() as f64 * done as f64) / loop_time / 1e6
+    } else {
+        0.0
+    };
+    let ck = tl.observer(checkpoints);
+    summary.checkpoint = ck.last.as_ref().map(|(_, p)| p.display().to_string());
+    if ck.count > 0 {
+        summary.checkpoints_written = Some(ck.count);
+        summary.checkpoint_seconds = Some(ck.seconds);
+        summary.checkpoint_bytes = Some(ck.bytes);
+    }
+    summary::fill(&mut summary, &tl, &cfg.balance, tasks_per_step);
+    let error = match (failure, interrupted) {
+        (Some(e), _) => Some(("unstable", e)),
+        (None, Some(signal)) => Some((
+            "interrupted",
+            Error::Interrupted {
+                signal,
+                step: tl.sim().step,
+                checkpoint: summary.checkpoint.clone(),
+            },
+        )),
+        (None, None) => None,
+    };
+    if let Some((status, e)) = error {
+        summary.status = status.to_string();
+        summary.error = Some(e.to_string());
+        write_summary(dir, &summary)?;
+        return Err(e);
+    }
+    let points: &[(f64, Body)] = trajectory.map_or(&[], |h| &tl.observer(h).points);
+    summary.observables = (scene.observe)(&RunView {
+        sim: tl.sim(),
+        trajectory: points,
+    });
+    summary.status = "ok".to_string();
+    write_summary(dir, &summary)?;
+    Ok(summary)
+}

@@ -1,0 +1,94 @@
+//! What a run needs from the machine, checked before anything is allocated: memory.
+
+use crate::config::{Config, Precision};
+use crate::error::{Error, Result};
+use crate::scenes::{self, Scene};
+
+/// Bytes available to a new allocation: the smallest of `MemAvailable` (/proc/meminfo), the cgroup v2
+/// `memory.max` and four fifths of the soft `RLIMIT_AS` (None where /proc/meminfo cannot be read).
+pub fn available_memory() -> Option<u128> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: u128 = line.split_whitespace().nth(1)?.parse().ok()?;
+    let mut avail = kb * 1024;
+    // A container's or batch job's cgroup limit (v2) and the process's own address-space limit bound it
+    // too (with a fifth left for the binary, the threads' stacks and the allocator).
+    if let Some(max) = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|t| t.trim().parse::<u128>().ok())
+    {
+        avail = avail.min(max);
+    }
+    let mut lim = libc::rlimit {
+        rlim_cur: 0,
+        rlim_max: 0,
+    };
+    // SAFETY: getrlimit writes the struct it is given.
+    if unsafe { libc::getrlimit(libc::RLIMIT_AS, &mut lim) } == 0 && lim.rlim_cur != libc::RLIM_INFINITY {
+        avail = avail.min(lim.rlim_cur as u128 / 5 * 4);
+    }
+    Some(avail)
+}
+
+/// The memory a scene's state needs, estimated before anything is allocated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryEstimate {
+    /// Everything, bytes.
+    pub total: u128,
+    /// PDFs: two fields of 19 values per cell with the ghost layer, in the precision.
+    pub pdf: u128,
+    /// Flags: one byte per cell with the ghost layer.
+    pub flags: u128,
+    /// Particles: each body's copies (two published lists, the rigid-body result, shadows) and the
+    /// per-block bookkeeping.
+    pub particles: u128,
+}
+
+/// The memory estimate of a scene under a configuration.
+pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<MemoryEstimate> {
+    let d = scenes::domain_for(&cfg.domain, scene)?;
+    let blocks: u128 = d.blocks.iter().map(|&x| x as u128).product();
+    let full: u128 = d.block_size.iter().map(|&x| x as u128 + 2).product();
+    let bytes: u128 = match cfg.fluid.precision {
+        Precision::F64 => 8,
+        Precision::F32 => 4,
+    };
+    let fluid = cfg.fluid.enabled && !scene.geometry.no_fluid;
+    let pdf = if fluid { 2 * 19 * blocks * full * bytes } else { 0 };
+    let flags = blocks * full;
+    let particles = match &scene.particles {
+        Some(ps) => {
+            let body = std::mem::size_of::<blockflow_kernels::rigid::Body>() as u128;
+            ps.bodies.len() as u128 * body * 8 + blocks * 1024
+        }
+        None => 0,
+    };
+    Ok(MemoryEstimate {
+        total: pdf + flags + particles,
+        pdf,
+        flags,
+        particles,
+    })
+}
+
+/// Refuses a scene whose estimated memory ([`estimate_memory`]) exceeds what the machine has available.
+pub fn check_memory(cfg: &Config, scene: &Scene) -> Result<()> {
+    let MemoryEstimate {
+        total,
+        pdf,
+        flags,
+        particles,
+    } = estimate_memory(cfg, scene)?;
+    if let Some(avail) = available_memory() {
+        if total > avail {
+            return Err(Error::Config(format!(
+                "scene {} needs an estimated {total} bytes ({:.1} GiB: PDFs {pdf}, flags {flags}, particles \
+                 {particles}) but the machine has {avail} bytes available (MemAvailable, cgroup and address-space limits); use fewer or smaller \
+                 blocks (domain.blocks, domain.block_size, scene.resolution)",
+                scene.name,
+                total as f64 / (1u64 << 30) as f64
+            )));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,133 @@
+//! The balancing step (section 4): at the end of every `balance.interval` steps, weigh every block
+//! (`balance.weights`) and let the strategy ([`Distribute`]: curve split, diffusive, METIS) distribute
+//! them; the time loop hands the new owners to the pipeline, which moves the blocks whose owner changed.
+//! The numerics never see an owner, so the result stays bitwise identical whatever the weights and moves.
+
+use super::block_graph::BlockGraph;
+use super::distribute::{Distribute, Distribution};
+use super::weights;
+use crate::config::{BalanceConfig, Weights};
+use crate::estimator::{Coefficients, Corrector};
+use crate::physics::simulation::Simulation;
+use blockflow_kernels::Real;
+
+/// State of the dynamic balancing of one run.
+pub struct Balancer {
+    /// What a block weighs.
+    pub weights: Weights,
+    /// The distribution strategy.
+    pub strategy: Box<dyn Distribute>,
+    /// The block graph the strategy works on.
+    pub graph: BlockGraph,
+    /// Virtual processes.
+    pub processes: usize,
+    /// Estimator coefficients (for `estimator` and `corrected`).
+    pub coefficients: Option<Coefficients>,
+    /// Predictor–corrector state (for `corrected`).
+    pub corrector: Corrector,
+    /// Prediction of eq. (15) summed over the current interval's steps, per block.
+    predicted: Vec<f64>,
+    /// Blocks moved so far.
+    pub migrated: u64,
+    /// Seconds spent balancing.
+    pub seconds: f64,
+    /// Balancing steps taken.
+    pub steps: u64,
+    /// The block weights of the last balancing step.
+    last: Vec<f64>,
+}
+
+impl Balancer {
+    /// A balancer of the blocks of `domain` with the distribution `strategy`.
+    pub fn new(
+        weights: Weights,
+        strategy: Box<dyn Distribute>,
+        processes: usize,
+        coefficients: Option<Coefficients>,
+        domain: &crate::physics::domain::DomainSpec,
+    ) -> Self {
+        let graph = BlockGraph::from_domain(domain);
+        let blocks = graph.len();
+        Balancer {
+            weights,
+            strategy,
+            graph,
+            processes,
+            coefficients,
+            corrector: Corrector::new(blocks),
+            predicted: vec![0.0; blocks],
+            migrated: 0,
+            seconds: 0.0,
+            steps: 0,
+            last: Vec::new(),
+        }
+    }
+
+    /// The balancer of `cfg.strategy` with `cfg.weights` (`coefficients` for `estimator` and `corrected`
+    /// weights) on `processes` processes; `None` for `"none"` (the assignment never changes).
+    pub fn of(
+        cfg: &BalanceConfig,
+        processes: usize,
+        coefficients: Option<Coefficients>,
+        domain: &crate::physics::domain::DomainSpec,
+    ) -> Option<Balancer> {
+        (cfg.strategy != crate::config::Strategy::None)
+            .then(|| Balancer::new(cfg.weights, super::strategy(cfg), processes, coefficients, domain))
+    }
+
+    fn estimate<T: Real>(&self, sim: &Simulation<T>) -> Vec<f64> {
+        weights::estimate(
+            sim,
+            self.coefficients.as_ref().expect("estimator weights have coefficients"),
+        )
+    }
+
+    /// Bookkeeping after a graph run of `k` steps: the corrector's prediction for the interval.
+    pub fn after_run<T: Real>(&mut self, sim: &Simulation<T>, k: usize) {
+        if self.weights == Weights::Corrected {
+            let e = self.estimate(sim);
+            for (p, x) in self.predicted.iter_mut().zip(e) {
+                *p += k as f64 * x;
+            }
+        }
+    }
+
+    /// Block weights for the next distribution, from the interval's measured per-block load.
+    pub fn block_weights<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<f64> {
+        match self.weights {
+            Weights::Cells => weights::cells(sim),
+            Weights::Estimator => self.estimate(sim),
+            Weights::Measured => crate::estimator::measured(block_load),
+            Weights::Corrected => {
+                self.corrector.update(&self.predicted, block_load);
+                self.predicted.iter_mut().for_each(|p| *p = 0.0);
+                let e = self.estimate(sim);
+                self.corrector.weights(&e)
+            }
+        }
+    }
+
+    /// The balancing step: block weights, then the strategy's distribution starting from the current
+    /// `owners`; returns the new owner of every block (and, for METIS, the moves without relabelling).
+    pub fn rebalance<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64], owners: &[u32]) -> Distribution {
+        self.steps += 1;
+        self.last = self.block_weights(sim, block_load);
+        self.strategy
+            .distribute(&self.graph, &self.last, owners, self.processes)
+    }
+
+    /// The corrector's prediction summed over the interval under way, per block (checkpoints store it).
+    pub fn predicted(&self) -> &[f64] {
+        &self.predicted
+    }
+
+    /// Restores the interval's prediction from a checkpoint (see [`Balancer::predicted`]).
+    pub fn set_predicted(&mut self, predicted: Vec<f64>) {
+        self.predicted = predicted;
+    }
+
+    /// The block weights of the last balancing step (empty before the first).
+    pub fn last_weights(&self) -> &[f64] {
+        &self.last
+    }
+}

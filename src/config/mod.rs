@@ -1,0 +1,67 @@
+//! Scene configuration: TOML files with the stable keys of DESIGN.md, one file per table
+//! (`[domain]`, `[fluid]`, `[run]`, `[processes]`, `[balance]`, `[particles]`; `[scene]` is the scenes'),
+//! `--set key.path=value` overrides ([`load`], [`parse()`]), unknown keys rejected by name. The enums that switch a
+//! run's algorithms (precision, kernels, surface boundary, strategy, weights, split) live here too, so
+//! every layer above reads them from one place.
+
+mod balance;
+mod domain;
+mod fluid;
+mod parse;
+mod particles;
+mod processes;
+mod run;
+
+pub use balance::{BalanceConfig, DiffusiveMode, SplitKind, Strategy, Weights, DEFAULT_BANDWIDTH, DEFAULT_LATENCY};
+pub use domain::DomainConfig;
+pub use fluid::{FluidConfig, KernelChoice, Precision};
+pub use parse::{apply_override, load, parse, parse_table};
+pub use particles::{ParticlesConfig, SurfaceBoundary};
+pub use processes::{PinConfig, ProcessesConfig, StealConfig};
+pub use run::{RunConfig, DEFAULT_KEPT};
+
+use crate::error::Result;
+use serde::{Deserialize, Serialize};
+
+/// A whole scene file.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Block decomposition (`[domain]`).
+    #[serde(default)]
+    pub domain: DomainConfig,
+    /// Fluid model (`[fluid]`).
+    #[serde(default)]
+    pub fluid: FluidConfig,
+    /// Run control (`[run]`).
+    #[serde(default)]
+    pub run: RunConfig,
+    /// Virtual processes and threads (`[processes]`).
+    #[serde(default)]
+    pub processes: ProcessesConfig,
+    /// Block assignment and balancing (`[balance]`).
+    #[serde(default)]
+    pub balance: BalanceConfig,
+    /// Rigid bodies and their solver (`[particles]`).
+    #[serde(default)]
+    pub particles: ParticlesConfig,
+    /// The scene and its physical parameters (`[scene]`, chosen by `kind`).
+    pub scene: crate::scenes::SceneConfig,
+}
+
+impl Config {
+    /// Checks the generic keys; scenes check their own.
+    pub fn validate(&self) -> Result<()> {
+        self.fluid.validate()?;
+        self.domain.validate()?;
+        self.processes.validate()?;
+        self.particles.validate()?;
+        self.balance.validate()?;
+        self.run.validate()
+    }
+
+    /// The configuration as TOML (what `effective.toml` holds: every default and override resolved).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+}

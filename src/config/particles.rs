@@ -1,0 +1,171 @@
+//! `[particles]`: the rigid-body solver and the fluid-particle coupling switches.
+
+use crate::error::{config_err, Result};
+use serde::{Deserialize, Serialize};
+
+/// `[particles]`: the hard-contact rigid-body solver (section 2.2, Algorithm 7) of scenes with bodies.
+/// Units are the scene's: lattice units (Δx = Δt = 1) when the fluid is on. Keys left out take the
+/// scene's default where it has one (gravity, restitution threshold), else the default below.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ParticlesConfig {
+    /// Rigid-body sub-steps S per time step (Algorithm 1; the hydrodynamic force is held over them).
+    #[serde(default = "d_subcycles")]
+    pub subcycles: usize,
+    /// Coefficient of restitution e of the normal contact (0: plastic, 1: elastic).
+    #[serde(default = "d_restitution")]
+    pub restitution: f64,
+    /// Coulomb friction coefficient μ.
+    #[serde(default = "d_friction")]
+    pub friction: f64,
+    /// Projected Gauss–Seidel sweeps over the contacts of a block per sub-step.
+    #[serde(default = "d_iterations")]
+    pub iterations: usize,
+    /// Relaxation ω of the Gauss–Seidel update, in (0, 2).
+    #[serde(default = "d_relaxation")]
+    pub relaxation: f64,
+    /// Body count (locals + shadows of a block) from which detection uses the hash grid, not all pairs.
+    #[serde(default = "d_grid_threshold")]
+    pub grid_threshold: usize,
+    /// Gap below which a contact is generated (speculative contacts), ≥ 0.
+    #[serde(default)]
+    pub contact_margin: f64,
+    /// Baumgarte factor β in [0, 1]: a penetration d is removed at speed β d / Δt_sub.
+    #[serde(default = "d_position_correction")]
+    pub position_correction: f64,
+    /// Approach speed above which restitution applies; absent: the scene's default.
+    pub restitution_threshold: Option<f64>,
+    /// Gravitational acceleration; absent: the scene's default.
+    pub gravity: Option<[f64; 3]>,
+    /// Time per step for scenes without fluid (with fluid the step is the lattice time unit, 1); absent:
+    /// the scene's default.
+    pub dt: Option<f64>,
+    /// Boundary condition at particle surfaces: `"cli"` (default; eq. 6 with the ray–sphere δ_q, simple
+    /// bounce-back where the second fluid cell is missing) or `"sbb"` (simple bounce-back).
+    #[serde(default)]
+    pub boundary: SurfaceBoundary,
+    /// Average the hydrodynamic force and torque over the current and the previous step (default on:
+    /// without it, spheres lighter than about twice the fluid's density oscillate and blow up).
+    #[serde(default = "yes")]
+    pub force_averaging: bool,
+}
+
+fn d_subcycles() -> usize {
+    10
+}
+fn d_restitution() -> f64 {
+    0.5
+}
+fn d_friction() -> f64 {
+    0.3
+}
+fn d_iterations() -> usize {
+    20
+}
+fn d_relaxation() -> f64 {
+    1.0
+}
+fn d_grid_threshold() -> usize {
+    32
+}
+fn d_position_correction() -> f64 {
+    0.2
+}
+
+impl Default for ParticlesConfig {
+    fn default() -> Self {
+        ParticlesConfig {
+            subcycles: d_subcycles(),
+            restitution: d_restitution(),
+            friction: d_friction(),
+            iterations: d_iterations(),
+            relaxation: d_relaxation(),
+            grid_threshold: d_grid_threshold(),
+            contact_margin: 0.0,
+            position_correction: d_position_correction(),
+            restitution_threshold: None,
+            gravity: None,
+            dt: None,
+            boundary: Default::default(),
+            force_averaging: true,
+        }
+    }
+}
+
+impl ParticlesConfig {
+    /// Checks every key's range; the message names the key and the allowed range.
+    pub fn validate(&self) -> Result<()> {
+        let p = self;
+        if p.subcycles == 0 || p.subcycles > 255 {
+            return config_err(format!(
+                "particles.subcycles = {}: must be between 1 and 255",
+                p.subcycles
+            ));
+        }
+        if p.iterations == 0 || p.iterations > 100_000 {
+            return config_err(format!(
+                "particles.iterations = {}: must be between 1 and 100000",
+                p.iterations
+            ));
+        }
+        let checks: [(&str, f64, bool, &str); 5] = [
+            (
+                "restitution",
+                p.restitution,
+                (0.0..=1.0).contains(&p.restitution),
+                "between 0 and 1",
+            ),
+            ("friction", p.friction, p.friction >= 0.0, "≥ 0"),
+            (
+                "relaxation",
+                p.relaxation,
+                p.relaxation > 0.0 && p.relaxation < 2.0,
+                "in (0, 2)",
+            ),
+            ("contact_margin", p.contact_margin, p.contact_margin >= 0.0, "≥ 0"),
+            (
+                "position_correction",
+                p.position_correction,
+                (0.0..=1.0).contains(&p.position_correction),
+                "between 0 and 1",
+            ),
+        ];
+        for (k, v, ok, what) in checks {
+            if !ok || !v.is_finite() {
+                return config_err(format!("particles.{k} = {v}: must be {what}"));
+            }
+        }
+        if let Some(t) = p.restitution_threshold {
+            if !(t >= 0.0 && t.is_finite()) {
+                return config_err(format!("particles.restitution_threshold = {t}: must be ≥ 0"));
+            }
+        }
+        if let Some(g) = p.gravity {
+            if g.iter().any(|v| !v.is_finite()) {
+                return config_err(format!("particles.gravity = {g:?}: must be finite"));
+            }
+        }
+        if let Some(dt) = p.dt {
+            if !(dt > 0.0 && dt.is_finite()) {
+                return config_err(format!("particles.dt = {dt}: must be a finite number > 0"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Boundary condition at particle surfaces (`particles.boundary`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SurfaceBoundary {
+    /// Central linear interpolation with δ_q from the ray–sphere intersection (eq. 6), simple bounce-back
+    /// where the second fluid cell is missing.
+    #[default]
+    Cli,
+    /// Simple bounce-back (δ_q = 1/2 everywhere).
+    Sbb,
+}
+
+fn yes() -> bool {
+    true
+}

@@ -1,0 +1,88 @@
+//! `[processes]`: virtual processes (thread groups standing in for MPI ranks), pinning and stealing.
+
+use crate::error::{config_err, Result};
+use serde::{Deserialize, Serialize};
+
+/// `processes.pin`: a policy name or an explicit core list.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(untagged)]
+pub enum PinConfig {
+    /// `"compact"`, `"scatter"` or `"none"` (or a list written as a string, `"0,2,4-7"`).
+    Name(String),
+    /// Explicit cores, one per worker thread in process-major order.
+    Cores(Vec<usize>),
+}
+
+impl Default for PinConfig {
+    fn default() -> Self {
+        PinConfig::Name("none".into())
+    }
+}
+
+/// `processes.steal`: where idle threads may take ready tasks from.
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum StealConfig {
+    /// Only inside their own virtual process (MPI-faithful; default).
+    #[default]
+    Process,
+    /// From any process: a shared-memory experiment MPI cannot run.
+    Global,
+}
+
+/// `[processes]`: virtual processes (thread groups standing in for MPI ranks).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProcessesConfig {
+    /// Number of virtual processes P.
+    #[serde(default = "one")]
+    pub count: usize,
+    /// Threads per process T.
+    #[serde(default = "one")]
+    pub threads_per_process: usize,
+    /// Pinning policy.
+    #[serde(default)]
+    pub pin: PinConfig,
+    /// Stealing policy.
+    #[serde(default)]
+    pub steal: StealConfig,
+    /// Steps per task-graph run: consecutive steps overlap inside a run (no barrier between them); the
+    /// instability detector and the time series look at the state between runs.
+    #[serde(default = "d_graph_steps")]
+    pub steps_per_graph: usize,
+}
+
+fn one() -> usize {
+    1
+}
+fn d_graph_steps() -> usize {
+    4
+}
+
+impl Default for ProcessesConfig {
+    fn default() -> Self {
+        ProcessesConfig {
+            count: 1,
+            threads_per_process: 1,
+            pin: PinConfig::default(),
+            steal: StealConfig::Process,
+            steps_per_graph: d_graph_steps(),
+        }
+    }
+}
+
+impl ProcessesConfig {
+    /// Checks the keys' ranges; the message names the key.
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [
+            ("processes.count", self.count),
+            ("processes.threads_per_process", self.threads_per_process),
+            ("processes.steps_per_graph", self.steps_per_graph),
+        ] {
+            if v == 0 || v > 4096 {
+                return config_err(format!("{name} = {v}: must be between 1 and 4096"));
+            }
+        }
+        Ok(())
+    }
+}

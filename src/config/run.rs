@@ -1,0 +1,86 @@
+//! `[run]`: run length, output, checkpoints and the skip rules' measurement switch.
+
+use crate::error::{config_err, Result};
+use serde::{Deserialize, Serialize};
+
+/// `[run]`: run length, output and checkpoints.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Number of time steps; absent: the scene's own (e.g. to steady state).
+    pub steps: Option<u64>,
+    /// Output folder; absent: `out/<scene file name>`.
+    pub out: Option<String>,
+    /// Write a row of `series.csv` every this many steps (default: about 100 rows per run, at least every 10 steps).
+    pub series_every: Option<u64>,
+    /// Write VTK output every this many steps (default: never).
+    pub vtk_every: Option<u64>,
+    /// Write a checkpoint (`OUT/checkpoints/step-<step>`) whenever the step is a multiple of this
+    /// (default: never; `--checkpoint-every`).
+    pub checkpoint_every: Option<u64>,
+    /// Write a checkpoint when this many wall-clock seconds have passed since the last one (default:
+    /// never; `--checkpoint-wall`).
+    pub checkpoint_wall: Option<f64>,
+    /// Checkpoints kept: after each write all but the newest this many are deleted (default 2).
+    #[serde(default = "d_checkpoints_kept")]
+    pub checkpoints_kept: usize,
+    /// Run every task on every block (`--no-skip`; default false): switches off the skip rules of
+    /// DESIGN.md principle 2 (outside blocks, blocks without boundary cells, blocks without particles,
+    /// static geometry mapped once, the fused kernel) to measure what they save. For measurement only:
+    /// slower, and the results are bitwise the same. See the skip rules in `pipeline`.
+    #[serde(default)]
+    pub no_skip: bool,
+}
+
+fn d_checkpoints_kept() -> usize {
+    DEFAULT_KEPT
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig {
+            steps: None,
+            out: None,
+            series_every: None,
+            vtk_every: None,
+            checkpoint_every: None,
+            checkpoint_wall: None,
+            checkpoints_kept: d_checkpoints_kept(),
+            no_skip: false,
+        }
+    }
+}
+
+/// Default of `run.checkpoints_kept`.
+pub const DEFAULT_KEPT: usize = 2;
+
+impl RunConfig {
+    /// Checks the keys' ranges; the message names the key.
+    pub fn validate(&self) -> Result<()> {
+        for (name, v) in [
+            ("run.series_every", self.series_every),
+            ("run.vtk_every", self.vtk_every),
+        ] {
+            if v == Some(0) {
+                return config_err(format!("{name} = 0: must be at least 1 (leave it out to disable)"));
+            }
+        }
+        if self.checkpoint_every == Some(0) {
+            return config_err("run.checkpoint_every = 0: must be at least 1 step (leave it out to disable)");
+        }
+        if let Some(w) = self.checkpoint_wall {
+            if !(w.is_finite() && w > 0.0) {
+                return config_err(format!(
+                    "run.checkpoint_wall = {w}: must be a finite number of seconds > 0 (leave it out to disable)"
+                ));
+            }
+        }
+        if self.checkpoints_kept == 0 || self.checkpoints_kept > 1_000_000 {
+            return config_err(format!(
+                "run.checkpoints_kept = {}: must be between 1 and 1000000",
+                self.checkpoints_kept
+            ));
+        }
+        Ok(())
+    }
+}

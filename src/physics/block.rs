@@ -1,0 +1,465 @@
+//! One block: its PDF fields (source and destination), cell flags, fluid segments, bounce-back links and
+//! the list of ghost regions it must receive. Built once per block layout from the scene geometry.
+
+use crate::physics::domain::{DomainSpec, NEIGHBOURS};
+use crate::physics::geometry::{flags, CellKind, Geometry};
+use blockflow_kernels::bounce_back::Links;
+use blockflow_kernels::d3q19::{crossing_directions, C, Q};
+use blockflow_kernels::sweep::Segment;
+use blockflow_kernels::{Layout, PdfField, Real};
+use std::cell::UnsafeCell;
+
+/// Byte skew of a block's second field against the first, so source and destination arrays do not alias
+/// on 4 KiB pages either.
+const DST_SKEW_BYTES: usize = 2048 + 96;
+
+/// A ghost region this block receives: the neighbour at `offset` sends the `directions` that cross.
+#[derive(Clone, Debug)]
+pub struct GhostRecv {
+    /// Offset of the neighbour block (each component in -1..=1).
+    pub offset: [i32; 3],
+    /// The neighbour's block id (may be this block itself on a periodic axis with one block).
+    pub from: usize,
+    /// PDF directions that stream from the ghost region into this block.
+    pub directions: Vec<usize>,
+}
+
+/// Per-block state of the fluid.
+pub struct Block<T: Real> {
+    /// Block id (x fastest over the block grid).
+    pub id: usize,
+    /// Block coordinates.
+    pub coords: [usize; 3],
+    /// Global coordinates of the first interior cell.
+    pub origin: [usize; 3],
+    /// Index arithmetic of both fields.
+    pub layout: Layout,
+    /// The two PDF fields. After `s` steps the state (post-collision PDFs) is in `fields[s % 2]`; step
+    /// `s + 1` fills that field's ghost layer and wall cells, then streams and collides into the other one.
+    /// Behind `UnsafeCell` so tasks of the step graph can work on disjoint regions concurrently.
+    fields: [UnsafeCell<PdfField<T>>; 2],
+    /// Flag byte per cell, indexed like the fields (ghost layer included).
+    pub flags: Vec<u8>,
+    /// Runs of fluid cells along x: what the kernels sweep.
+    pub segments: Vec<Segment>,
+    /// Bounce-back links of the fluid cells.
+    pub links: Links<T>,
+    /// Ghost regions to receive before the boundary pass.
+    pub recv: Vec<GhostRecv>,
+    /// Number of interior fluid cells.
+    pub fluid_cells: usize,
+    /// Number of interior fluid cells with a wall neighbour.
+    pub near_boundary_cells: usize,
+    /// Whether every interior cell is fluid (then segments are whole rows).
+    pub obstacle_free: bool,
+    /// Cells covered by particles, their links and forces (absent without particles in the fluid).
+    /// Rebuilt by the `map` task, read by the boundary and sweep tasks (ordered by the graph).
+    particles: UnsafeCell<Option<crate::physics::particle_cells::ParticleCells>>,
+}
+
+/// What a block takes from the scene's static geometry (walls, planes, no-fluid regions): cell flags
+/// (ghost layer included), fluid runs, bounce-back links and the cell counts. Derived once per block in
+/// [`Block::new`] ("a scene maps its static geometry once", DESIGN.md principle 2); `--no-skip`
+/// re-derives it every step ([`Block::check_static_geometry`]) to measure what that saves.
+#[derive(Clone, Debug)]
+pub struct StaticGeometry<T: Real> {
+    /// Index arithmetic of the block's fields.
+    pub layout: Layout,
+    /// Flag byte per cell, indexed like the fields (ghost layer included).
+    pub flags: Vec<u8>,
+    /// Runs of fluid cells along x.
+    pub segments: Vec<Segment>,
+    /// Bounce-back links of the fluid cells.
+    pub links: Links<T>,
+    /// Interior fluid cells.
+    pub fluid_cells: usize,
+    /// Interior fluid cells with a wall neighbour.
+    pub near_boundary_cells: usize,
+}
+
+impl<T: Real> StaticGeometry<T> {
+    /// Classifies every cell of block `id` of `d` (ghost layer included) against the geometry, cell by
+    /// cell, and derives flags, fluid runs and links from it.
+    pub fn derive(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+        let layout = Layout::new::<T>(d.block_size);
+        let origin = d.origin(id);
+        let [fx, fy, fz] = layout.full();
+        let mut kind = vec![CellKind::Fluid; fx * fy * fz];
+        let lin = |x: usize, y: usize, z: usize| x + fx * (y + fy * z);
+        for z in 0..fz {
+            for y in 0..fy {
+                for x in 0..fx {
+                    let g = [
+                        origin[0] as i64 + x as i64 - 1,
+                        origin[1] as i64 + y as i64 - 1,
+                        origin[2] as i64 + z as i64 - 1,
+                    ];
+                    kind[lin(x, y, z)] = geo.classify(d, g);
+                }
+            }
+        }
+        let mut fl = vec![0u8; layout.sxy * fz];
+        for z in 0..fz {
+            for y in 0..fy {
+                for x in 0..fx {
+                    let i = layout.idx(x, y, z);
+                    fl[i] = match kind[lin(x, y, z)] {
+                        CellKind::Fluid => flags::FLUID,
+                        CellKind::Wall(_) => flags::OUTSIDE,
+                    };
+                }
+            }
+        }
+        let mut links = Links::new();
+        let mut segments = Vec::new();
+        let mut fluid_cells = 0;
+        let mut near = 0;
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                let mut run: Option<Segment> = None;
+                for x in 1..fx - 1 {
+                    let i = layout.idx(x, y, z);
+                    if fl[i] & flags::FLUID == 0 {
+                        if let Some(s) = run.take() {
+                            segments.push(s);
+                        }
+                        continue;
+                    }
+                    fluid_cells += 1;
+                    match run.as_mut() {
+                        Some(s) => s.len += 1,
+                        None => run = Some(Segment { start: i, len: 1 }),
+                    }
+                    let mut is_near = false;
+                    for (q, c) in C.iter().enumerate().skip(1) {
+                        let (wx, wy, wz) = (
+                            (x as i64 - c[0] as i64) as usize,
+                            (y as i64 - c[1] as i64) as usize,
+                            (z as i64 - c[2] as i64) as usize,
+                        );
+                        if let CellKind::Wall(v) = kind[lin(wx, wy, wz)] {
+                            links.push(&layout, i, q, v);
+                            is_near = true;
+                            let w = layout.idx(wx, wy, wz);
+                            fl[w] = if v == [0.0; 3] {
+                                flags::NOSLIP
+                            } else {
+                                flags::MOVING_WALL
+                            };
+                        }
+                    }
+                    if is_near {
+                        fl[i] |= flags::NEAR_BOUNDARY;
+                        near += 1;
+                    }
+                }
+                if let Some(s) = run.take() {
+                    segments.push(s);
+                }
+            }
+        }
+        StaticGeometry {
+            layout,
+            flags: fl,
+            segments,
+            links,
+            fluid_cells,
+            near_boundary_cells: near,
+        }
+    }
+}
+
+impl<T: Real> Block<T> {
+    /// Builds block `id` of `d` from the geometry: flags (ghost layer included), segments, links and the
+    /// ghost regions it needs. Fields start at rest; call [`Block::init`] to set an initial state.
+    pub fn new(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+        let StaticGeometry {
+            layout,
+            flags: fl,
+            segments,
+            links,
+            fluid_cells,
+            near_boundary_cells: near,
+        } = StaticGeometry::derive(d, geo, id);
+        let origin = d.origin(id);
+        let mut recv = Vec::new();
+        if fluid_cells > 0 {
+            for &off in NEIGHBOURS.iter() {
+                let dirs = crossing_directions(off);
+                if dirs.is_empty() {
+                    continue;
+                }
+                let Some(from) = d.neighbour(id, off) else {
+                    continue;
+                };
+                // Needed only if a fluid ghost cell in this region streams into an interior fluid cell.
+                let needed = ghost_region(&layout, off).any(|(x, y, z)| {
+                    fl[layout.idx(x, y, z)] & flags::FLUID != 0
+                        && dirs.iter().any(|&q| {
+                            let t = layout.idx(
+                                (x as i64 + C[q][0] as i64) as usize,
+                                (y as i64 + C[q][1] as i64) as usize,
+                                (z as i64 + C[q][2] as i64) as usize,
+                            );
+                            fl[t] & flags::FLUID != 0
+                        })
+                });
+                if needed {
+                    recv.push(GhostRecv {
+                        offset: off,
+                        from,
+                        directions: dirs,
+                    });
+                }
+            }
+        }
+        let obstacle_free = fluid_cells == layout.interior_cells();
+        Block {
+            id,
+            coords: d.coords(id),
+            origin,
+            layout,
+            fields: [
+                UnsafeCell::new(PdfField::new(layout, 0)),
+                UnsafeCell::new(PdfField::new(layout, DST_SKEW_BYTES)),
+            ],
+            flags: fl,
+            segments,
+            links,
+            recv,
+            fluid_cells,
+            near_boundary_cells: near,
+            obstacle_free,
+            particles: UnsafeCell::new(None),
+        }
+    }
+
+    /// The particle overlay, if particles are mapped into this block's fluid.
+    pub fn particle_cells(&self) -> Option<&crate::physics::particle_cells::ParticleCells> {
+        // SAFETY: a shared view; the overlay is written only by this block's map and boundary tasks,
+        // which the graph orders against every reader.
+        unsafe { (*self.particles.get()).as_ref() }
+    }
+
+    /// The particle overlay for writing (created on first use).
+    ///
+    /// # Safety
+    /// No other reference to the overlay may be alive until the returned one is dropped.
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn particle_cells_mut(&self) -> &mut crate::physics::particle_cells::ParticleCells {
+        (*self.particles.get()).get_or_insert_with(Default::default)
+    }
+
+    /// Runs of interior cells that are fluid now: the static segments, minus cells covered by particles.
+    pub fn fluid_segments(&self) -> &[Segment] {
+        match self.particle_cells() {
+            Some(pc) => &pc.segments,
+            None => &self.segments,
+        }
+    }
+
+    /// Interior fluid cells now (static fluid cells not covered by a particle).
+    pub fn current_fluid_cells(&self) -> usize {
+        self.particle_cells().map_or(self.fluid_cells, |pc| pc.fluid_cells)
+    }
+
+    /// Field `p` (0 or 1) for reading. Callers must not hold it across a concurrent writer of the same
+    /// elements; the step graph guarantees that (see `pipeline`).
+    #[inline]
+    pub fn field(&self, p: usize) -> &PdfField<T> {
+        // SAFETY: a shared view; concurrent writes only go through raw pointers to elements that no
+        // reader of this view touches at the same time (ordered by the task graph).
+        unsafe { &*self.fields[p].get() }
+    }
+
+    /// Field `p` for writing through a shared block reference.
+    ///
+    /// # Safety
+    /// No other reference to field `p` may be alive or created until the returned one is dropped.
+    #[inline]
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn field_mut(&self, p: usize) -> &mut PdfField<T> {
+        &mut *self.fields[p].get()
+    }
+
+    /// Field `p` for writing with exclusive access to the block.
+    pub fn field_excl(&mut self, p: usize) -> &mut PdfField<T> {
+        self.fields[p].get_mut()
+    }
+
+    /// Sets every fluid cell of field 0 (the state after 0 steps) to the post-collision state
+    /// `f(global cell)` (zero-centred PDFs).
+    pub fn init(&mut self, mut f: impl FnMut([usize; 3]) -> [f64; Q]) {
+        let l = self.layout;
+        for s in &self.segments {
+            let [x0, y, z] = l.coords(s.start);
+            for x in x0..x0 + s.len {
+                let g = [self.origin[0] + x - 1, self.origin[1] + y - 1, self.origin[2] + z - 1];
+                let v = f(g);
+                let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(v[q]));
+                self.fields[0].get_mut().set_cell(l.idx(x, y, z), &cell);
+            }
+        }
+    }
+
+    /// Calls `visit(global cell, element index)` for every interior fluid cell, in x-fastest order.
+    pub fn for_each_fluid(&self, mut visit: impl FnMut([usize; 3], usize)) {
+        let l = self.layout;
+        for s in self.fluid_segments() {
+            let [x0, y, z] = l.coords(s.start);
+            for x in x0..x0 + s.len {
+                visit(
+                    [self.origin[0] + x - 1, self.origin[1] + y - 1, self.origin[2] + z - 1],
+                    l.idx(x, y, z),
+                );
+            }
+        }
+    }
+
+    /// A fresh field at rest for slot `p` (0 or 1), with the slot's page skew. Its pages are mapped lazily:
+    /// the first thread that writes them places them (first touch).
+    pub fn fresh_field(&self, p: usize) -> PdfField<T> {
+        PdfField::new(self.layout, if p == 0 { 0 } else { DST_SKEW_BYTES })
+    }
+
+    /// Replaces field `p` (e.g. by one rebuilt from a serialised block) and returns the old one.
+    ///
+    /// # Safety
+    /// No other reference to field `p` may be alive, and no task may run on this block.
+    pub unsafe fn replace_field(&self, p: usize, f: PdfField<T>) -> PdfField<T> {
+        assert_eq!(f.layout, self.layout, "replacement field of another layout");
+        std::mem::replace(&mut *self.fields[p].get(), f)
+    }
+
+    /// Replaces the particle overlay (`None`: no particles mapped into this block) and returns the old one.
+    ///
+    /// # Safety
+    /// No other reference to the overlay may be alive, and no task may run on this block.
+    pub unsafe fn replace_particle_cells(
+        &self,
+        pc: Option<crate::physics::particle_cells::ParticleCells>,
+    ) -> Option<crate::physics::particle_cells::ParticleCells> {
+        std::mem::replace(&mut *self.particles.get(), pc)
+    }
+
+    /// `--no-skip`'s stand-in for "static geometry mapped once": re-derives this block's flags, fluid
+    /// runs and links from the scene geometry, cell by cell, and checks them against the stored ones
+    /// (which every task keeps using, so results do not change). Panics if they differ: the static
+    /// geometry is then not static.
+    pub fn check_static_geometry(&self, d: &DomainSpec, geo: &Geometry) {
+        let s = StaticGeometry::<T>::derive(d, geo, self.id);
+        let same_moving = s.links.moving.len() == self.links.moving.len()
+            && s.links
+                .moving
+                .iter()
+                .zip(&self.links.moving)
+                .all(|(a, b)| a.0 == b.0 && a.1.to_f64().to_bits() == b.1.to_f64().to_bits());
+        assert!(
+            s.layout == self.layout
+                && s.flags == self.flags
+                && s.segments == self.segments
+                && s.links.noslip == self.links.noslip
+                && same_moving
+                && s.fluid_cells == self.fluid_cells
+                && s.near_boundary_cells == self.near_boundary_cells,
+            "block {}: the static geometry derived again differs from the one mapped at set-up",
+            self.id
+        );
+    }
+
+    /// The general path of the sweep's cell selection (`--no-skip`): visits every interior cell, checks
+    /// its flag (and the particle overlay's owner) one by one, and writes the runs of fluid cells into
+    /// `out`: the same runs as [`Block::fluid_segments`], which are otherwise computed once per mapping.
+    /// Returns the number of fluid cells found.
+    pub fn scan_fluid_runs(&self, out: &mut Vec<Segment>) -> usize {
+        out.clear();
+        let l = self.layout;
+        let [fx, fy, fz] = l.full();
+        let owner = self
+            .particle_cells()
+            .map(|pc| pc.owner.as_slice())
+            .filter(|o| o.len() == l.sxy * fz);
+        let mut n = 0;
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                let mut run: Option<Segment> = None;
+                for x in 1..fx - 1 {
+                    let i = l.idx(x, y, z);
+                    let fluid = self.flags[i] & flags::FLUID != 0 && owner.is_none_or(|o| o[i] == 0);
+                    if !fluid {
+                        if let Some(s) = run.take() {
+                            out.push(s);
+                        }
+                        continue;
+                    }
+                    n += 1;
+                    match run.as_mut() {
+                        Some(s) => s.len += 1,
+                        None => run = Some(Segment { start: i, len: 1 }),
+                    }
+                }
+                if let Some(s) = run.take() {
+                    out.push(s);
+                }
+            }
+        }
+        n
+    }
+
+    /// The general path of the boundary task's cell selection (`--no-skip`): visits every interior cell
+    /// and counts those flagged near a wall (a block without boundary cells finds none, cell by cell).
+    pub fn scan_near_boundary(&self) -> usize {
+        let l = self.layout;
+        let [fx, fy, fz] = l.full();
+        let mut n = 0;
+        for z in 1..fz - 1 {
+            for y in 1..fy - 1 {
+                for x in 1..fx - 1 {
+                    let f = self.flags[l.idx(x, y, z)];
+                    n += usize::from(f & flags::FLUID != 0 && f & flags::NEAR_BOUNDARY != 0);
+                }
+            }
+        }
+        n
+    }
+
+    /// Bytes of PDF storage (both fields).
+    pub fn pdf_bytes(&self) -> usize {
+        2 * self.layout.len() * std::mem::size_of::<T>()
+    }
+}
+
+/// Ghost-inclusive coordinate ranges (x, y, z) of the ghost region at neighbour offset `off`.
+pub fn ghost_ranges(l: &Layout, off: [i32; 3]) -> [std::ops::RangeInclusive<usize>; 3] {
+    std::array::from_fn(|a| match off[a] {
+        -1 => 0..=0,
+        0 => 1..=l.size[a],
+        _ => l.size[a] + 1..=l.size[a] + 1,
+    })
+}
+
+/// Coordinate ranges of the interior cells of a sending block that fill a receiver's ghost region at
+/// offset `off` (the layer next to the opposite face); same shape and order as [`ghost_ranges`].
+pub fn source_ranges(l: &Layout, off: [i32; 3]) -> [std::ops::RangeInclusive<usize>; 3] {
+    std::array::from_fn(|a| match off[a] {
+        -1 => l.size[a]..=l.size[a],
+        0 => 1..=l.size[a],
+        _ => 1..=1,
+    })
+}
+
+// SAFETY: a block is shared between the worker threads of the step graph. Everything except the two
+// fields is read-only while the graph runs; the fields are written only (a) through raw pointers to ghost
+// cells and wall cells by the exchange and boundary tasks and (b) through `field_mut` by the sweep, which
+// writes the field nobody else reads during that step. The graph's edges order every pair of tasks whose
+// accesses to the same elements conflict (documented in `pipeline`).
+unsafe impl<T: Real> Sync for Block<T> {}
+
+/// The ghost cells of the region at neighbour offset `off`, z slowest.
+pub fn ghost_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {
+    let [rx, ry, rz] = ghost_ranges(l, off);
+    rz.flat_map(move |z| {
+        let rx = rx.clone();
+        ry.clone().flat_map(move |y| rx.clone().map(move |x| (x, y, z)))
+    })
+}

@@ -1,0 +1,203 @@
+//! The per-block stages of one fluid time step (DESIGN.md, "One time step as a task graph"): ghost
+//! exchange, boundary, stream + collide. Each is a function of one block (and, for the exchange, the
+//! sending block's data), so the scheduler can run them as tasks.
+//!
+//! State convention: between steps a block holds *post-collision* PDFs. A step is
+//! exchange (fill ghost layers from the neighbours) → boundary (write bounce-back values into wall cells)
+//! → pull-stream + collide into the other field (the two fields alternate with the step's parity). This is Algorithm 1's collide → communicate →
+//! boundary → stream with the cycle cut after the collision.
+
+use crate::config::KernelChoice;
+use crate::physics::block::{ghost_ranges, source_ranges, Block};
+use blockflow_kernels::d3q19::Q;
+use blockflow_kernels::sweep::{self, SweepStats};
+use blockflow_kernels::{Real, TrtParams};
+
+/// Packs the PDFs the receiver's ghost region at offset `off` needs from field `p` of `sender`
+/// (directions `dirs`, interior layer next to the shared face/edge) into `buf`, row by row: the message
+/// that crosses processes (and that an MPI backend would send).
+pub fn pack<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], buf: &mut Vec<T>) {
+    buf.clear();
+    let l = &sender.layout;
+    let f = sender.field(p).raw();
+    let [rx, ry, rz] = source_ranges(l, off);
+    let n = rx.end() - rx.start() + 1;
+    for &q in dirs {
+        let base = q * l.stride;
+        for z in rz.clone() {
+            for y in ry.clone() {
+                let i = base + l.idx(*rx.start(), y, z);
+                // SAFETY: interior cells of the sender's field; no task writes them concurrently (graph).
+                unsafe {
+                    if n == 1 {
+                        buf.push(*f.add(i)); // x faces: one strided element per row, no memcpy call
+                    } else {
+                        buf.extend_from_slice(std::slice::from_raw_parts(f.add(i), n));
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Unpacks a message from [`pack`] into the ghost region at offset `off` of field `p` of `receiver`.
+pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], buf: &[T]) {
+    let l = receiver.layout;
+    let f = receiver.field(p).raw();
+    let [rx, ry, rz] = ghost_ranges(&l, off);
+    let n = rx.end() - rx.start() + 1;
+    let mut k = 0;
+    for &q in dirs {
+        let base = q * l.stride;
+        for z in rz.clone() {
+            for y in ry.clone() {
+                let i = base + l.idx(*rx.start(), y, z);
+                assert!(k + n <= buf.len(), "message shorter than the ghost region");
+                // SAFETY: ghost cells of the receiver, written only by this task (graph).
+                unsafe { copy_run(buf.as_ptr().add(k), f.add(i), n) };
+                k += n;
+            }
+        }
+    }
+    assert_eq!(k, buf.len(), "message size does not match the ghost region");
+}
+
+/// Direct copy inside a process: the sender's interior layer straight into the receiver's ghost region
+/// (field `p` of both; the two may be the same block on a periodic axis: the regions are disjoint).
+pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize]) {
+    let l = receiver.layout;
+    let src = sender.field(p).raw();
+    let dst = receiver.field(p).raw();
+    let [sx, sy, sz] = source_ranges(&l, off);
+    let [gx, gy, gz] = ghost_ranges(&l, off);
+    let n = sx.end() - sx.start() + 1;
+    for &q in dirs {
+        let base = q * l.stride;
+        for (zs, zg) in sz.clone().zip(gz.clone()) {
+            for (ys, yg) in sy.clone().zip(gy.clone()) {
+                let i = base + l.idx(*sx.start(), ys, zs);
+                let j = base + l.idx(*gx.start(), yg, zg);
+                // SAFETY: interior source cells and ghost destination cells never overlap; the graph orders
+                // this copy after the sender's sweep and before anything else touches these elements.
+                unsafe { copy_run(src.add(i), dst.add(j), n) };
+            }
+        }
+    }
+}
+
+/// Copies a run of `n` values; a single value (the rows of an x face) is a plain load and store instead of
+/// a `memcpy` call, which made x-face exchanges several times slower than y and z faces.
+///
+/// # Safety
+/// Both ranges valid and non-overlapping.
+#[inline(always)]
+unsafe fn copy_run<T: Real>(src: *const T, dst: *mut T, n: usize) {
+    if n == 1 {
+        *dst = *src;
+    } else {
+        std::ptr::copy_nonoverlapping(src, dst, n);
+    }
+}
+
+/// Boundary pass (eq. 6 with δ_q = 1/2) on field `p`: writes the bounce-back values of all links into
+/// the wall cells.
+pub fn boundary<T: Real>(b: &Block<T>, p: usize) {
+    let f = b.field(p);
+    // SAFETY: writes wall elements and reads fluid elements of this block's field p; the graph runs no
+    // conflicting task on them concurrently.
+    unsafe { b.links.apply_raw(f.raw(), f.layout.len()) }
+}
+
+/// Pull-stream (eq. 4) and collide (eq. 2) every fluid cell of the block from field `p` into field
+/// `1 - p`. Fused and split kernels give identical bits.
+///
+/// # Safety
+/// No other task may access field `1 - p` of this block or write field `p` while this runs.
+pub unsafe fn stream_collide<T: Real>(b: &Block<T>, p: usize, params: &TrtParams, kernel: KernelChoice) -> SweepStats {
+    let src = b.field(p);
+    let dst = b.field_mut(1 - p);
+    match kernel {
+        KernelChoice::Fused => sweep::stream_collide(src, dst, b.fluid_segments(), params),
+        KernelChoice::Split => {
+            sweep::stream(src, dst, b.fluid_segments());
+            sweep::collide(dst, b.fluid_segments(), params)
+        }
+    }
+}
+
+/// The general path of [`boundary`] (`run.no_skip`): visits every interior cell to find the cells next to
+/// a wall, one by one, then applies the block's links (a block without boundary cells finds none and
+/// applies nothing). Same bits as [`boundary`].
+pub fn boundary_general<T: Real>(b: &Block<T>, p: usize) {
+    let near = b.scan_near_boundary();
+    assert_eq!(
+        near, b.near_boundary_cells,
+        "block {}: near-boundary cells found by the scan differ from the mapped ones",
+        b.id
+    );
+    boundary(b, p);
+}
+
+/// The general path of [`stream_collide`] (`run.no_skip`): the fluid runs are found by visiting every
+/// interior cell's flag (and particle owner) instead of the runs mapped once, and the unfused kernels
+/// run (pull-stream, then collide in place) instead of the fused one. A block without fluid visits its
+/// cells and sweeps nothing. Same bits as [`stream_collide`] (the kernels' sweeps do not depend on where
+/// a run starts, and the fused kernel equals stream followed by collide bit for bit).
+///
+/// # Safety
+/// As for [`stream_collide`].
+pub unsafe fn stream_collide_general<T: Real>(b: &Block<T>, p: usize, params: &TrtParams) -> SweepStats {
+    let mut runs = Vec::new();
+    b.scan_fluid_runs(&mut runs);
+    let src = b.field(p);
+    let dst = b.field_mut(1 - p);
+    sweep::stream(src, dst, &runs);
+    sweep::collide(dst, &runs, params)
+}
+
+/// δρ and u of the stored (post-collision) state of element `i` of field `p`.
+pub fn cell_moments<T: Real>(b: &Block<T>, p: usize, i: usize, force: [f64; 3]) -> (f64, [f64; 3]) {
+    let f: [T; Q] = b.field(p).cell(i);
+    blockflow_kernels::trt::moments(&f, force)
+}
+
+/// The bad cell of field `p` (density or velocity non-finite, or |u| above `limit`) at the centre of the
+/// block's bad region: the one with the most bad neighbours among its 18 D3Q19 neighbours, the first in
+/// x-fastest order among equals; (global cell, δρ, u). A NaN injected into one cell spreads to its 18
+/// neighbours in one step, so one step later this names the injected cell itself. Used only after a sweep
+/// reported trouble.
+pub fn find_bad_cell<T: Real>(
+    b: &Block<T>,
+    p: usize,
+    limit: f64,
+    force: [f64; 3],
+) -> Option<([usize; 3], f64, [f64; 3])> {
+    let mut bad: Vec<([usize; 3], f64, [f64; 3])> = Vec::new();
+    b.for_each_fluid(|g, i| {
+        let (r, u) = cell_moments(b, p, i, force);
+        let u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
+        if !r.is_finite() || u2.is_nan() || u2 > limit * limit {
+            bad.push((g, r, u));
+        }
+    });
+    let set: std::collections::HashSet<[usize; 3]> = bad.iter().map(|c| c.0).collect();
+    let neighbours = |g: [usize; 3]| {
+        blockflow_kernels::d3q19::C[1..]
+            .iter()
+            .filter(|c| {
+                let n = [0, 1, 2].map(|a| g[a] as i64 + c[a] as i64);
+                n.iter().all(|&x| x >= 0) && set.contains(&n.map(|x| x as usize))
+            })
+            .count()
+    };
+    let mut best: Option<usize> = None;
+    let mut most = 0;
+    for (k, c) in bad.iter().enumerate() {
+        let n = neighbours(c.0);
+        if best.is_none() || n > most {
+            best = Some(k);
+            most = n;
+        }
+    }
+    best.map(|k| bad[k])
+}

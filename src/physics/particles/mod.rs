@@ -1,0 +1,573 @@
+//! Rigid bodies on the block grid (section 2.2 and Algorithm 7 of Rettinger & Rüde 2019, distributed the
+//! way the paper's pe framework distributes them): every body is *local* to the one block that contains
+//! its centre, and a *shadow* copy of it lives in every other block it reaches into within the halo. The
+//! numerics are the kernels' ([`blockflow_kernels::rigid`]); this module holds the per-block bookkeeping
+//! and the two tasks of a rigid-body sub-step ([`tasks`]).
+//!
+//! Rules that make the result independent of which process runs which block (DESIGN.md principle 1):
+//! - *Home block*: `floor(x / block_size)` per axis, clamped on walled axes; periodic positions are
+//!   wrapped into `[0, L)` when a body moves, so every block computes the same home for the same bits.
+//! - *Halo*: a body is a shadow of block b when its sphere comes within `r_max + contact_margin` of b's
+//!   box. Then every body that can touch a local body of b is present in b.
+//! - *Contact ownership*: a sphere pair belongs to the home block of its lower-id body, a sphere–plane
+//!   contact to the home block of the sphere: each contact is owned by exactly one block, which resolves
+//!   it in the kernels' fixed (body id) order.
+//! - *Owner computes, with context*: a block runs projected Gauss–Seidel over every contact among its
+//!   locals and shadows (the non-owned ones give its owned contacts the load of the neighbourhood), then
+//!   keeps only the impulses of the contacts it owns and turns them into velocity changes of the bodies
+//!   they touch. Every body's new velocity is its velocity after forces plus the changes from every block
+//!   in ascending block-id order (overlapping block-Jacobi between blocks, Gauss–Seidel inside a block).
+//!   Each contact's impulse acts on both of its bodies exactly once, so linear and angular momentum are
+//!   conserved to rounding whatever the block layout. Cross-block coupling lags by one sub-step: more
+//!   sub-steps with fewer sweeps each (`particles.subcycles`, `particles.iterations`) tighten it.
+//!
+//! Requirements checked at set-up and per sub-step: `2 r_max + contact_margin` plus the largest distance a
+//! body moves in one sub-step must stay below the smallest block edge, so that everything a block needs
+//! lives in its 26 neighbours.
+
+pub mod tasks;
+
+use crate::error::{config_err, Result};
+use crate::physics::domain::{DomainSpec, NEIGHBOURS};
+use crate::util::hash::mix;
+use blockflow_kernels::rigid::{Body, Plane, RigidParams};
+use glam::DVec3;
+use std::cell::UnsafeCell;
+use std::sync::Mutex;
+
+/// A neighbour block seen from a block: its id and the translation that maps its coordinates into this
+/// block's frame (non-zero across a periodic face).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Neighbour {
+    /// Block id (may be the block itself on a periodic axis with one or two blocks).
+    pub block: usize,
+    /// Added to the neighbour's body positions.
+    pub shift: DVec3,
+}
+
+/// A velocity change a block's contacts gave one of its shadow bodies.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Delta {
+    /// Body id.
+    pub id: u64,
+    /// Change of the translational velocity.
+    pub dv: DVec3,
+    /// Change of the angular velocity.
+    pub dw: DVec3,
+}
+
+/// The local bodies a block published after a sub-step, with each body's home block (computed once, by
+/// the publisher, from the new position).
+#[derive(Clone, Debug, Default)]
+pub struct Published {
+    /// Bodies sorted by id.
+    pub bodies: Vec<Body>,
+    /// Home block of each body.
+    pub homes: Vec<u32>,
+}
+
+/// What `rb(b, s)` computed for block b (read by `rb_sync` of b and its neighbours).
+#[derive(Clone, Debug, Default)]
+pub struct Work {
+    /// Local bodies sorted by id (velocities after forces and this block's contacts), then shadows
+    /// sorted by (id, neighbour index).
+    pub bodies: Vec<Body>,
+    /// Number of local bodies at the front of `bodies`.
+    pub locals: usize,
+    /// Velocity changes of the shadows, sorted by id (one entry per id).
+    pub deltas: Vec<Delta>,
+    /// Contacts owned by the block in this sub-step (K of Table 1).
+    pub contacts: usize,
+    /// Largest penetration among the owned contacts (before resolution).
+    pub max_penetration: f64,
+    /// Owned contacts summed over the sub-steps since the last [`Particles::collect_stats`].
+    pub contacts_total: u64,
+    /// Largest penetration since the last [`Particles::collect_stats`].
+    pub max_penetration_total: f64,
+    /// Owned contacts summed over the sub-steps of the current (or last finished) step.
+    pub contacts_step: u64,
+}
+
+/// Rigid-body state of one block.
+pub struct BlockBodies {
+    /// Block id.
+    pub id: usize,
+    /// Lower corner of the block's box (cells).
+    pub lo: DVec3,
+    /// Upper corner.
+    pub hi: DVec3,
+    /// The block itself (zero shift) first, then its neighbours over the 26 directions, each distinct
+    /// (block, shift) pair once.
+    pub neighbours: Vec<Neighbour>,
+    /// Distinct block ids among `neighbours` (this block included), ascending: the order in which
+    /// velocity changes are summed.
+    pub near: Vec<usize>,
+    /// Planes a local body of this block can touch.
+    pub planes: Vec<Plane>,
+    /// Local bodies after sub-step s, by parity of s (sorted by id). Written by `rb_sync(b, s)`.
+    published: [UnsafeCell<Published>; 2],
+    /// Written by `rb(b, s)`.
+    work: UnsafeCell<Work>,
+}
+
+// SAFETY: the cells are written only by the tasks of this block (`rb` writes `work`, `rb_sync` writes
+// `published[s % 2]`), and the task graph orders every write after the last read of the same data by a
+// neighbour's task and before the next one (see `tasks`).
+unsafe impl Sync for BlockBodies {}
+
+impl BlockBodies {
+    /// The local bodies published after a sub-step of parity `p`.
+    ///
+    /// # Safety
+    /// No `rb_sync` of this block for a sub-step of parity `p` may run concurrently.
+    pub unsafe fn published(&self, p: usize) -> &Published {
+        &*self.published[p].get()
+    }
+
+    /// The local bodies published after a sub-step of parity `p`, for writing (the `forces` task sets the
+    /// hydrodynamic force and torque in place).
+    ///
+    /// # Safety
+    /// No other task may read or write this list concurrently.
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn published_mut(&self, p: usize) -> &mut Published {
+        &mut *self.published[p].get()
+    }
+
+    /// Replaces the list published after a sub-step of parity `p` and returns the old one.
+    ///
+    /// # Safety
+    /// No task may read or write this block's lists concurrently.
+    pub unsafe fn replace_published(&self, p: usize, list: Published) -> Published {
+        std::mem::replace(&mut *self.published[p].get(), list)
+    }
+
+    /// Replaces the last `rb` result of this block (bodies, deltas, contact counters) and returns the old
+    /// one.
+    ///
+    /// # Safety
+    /// No task may read or write this block's `work` concurrently.
+    pub unsafe fn replace_work(&self, work: Work) -> Work {
+        std::mem::replace(&mut *self.work.get(), work)
+    }
+
+    /// The last `rb` result of this block.
+    ///
+    /// # Safety
+    /// No `rb` of this block may run concurrently.
+    pub unsafe fn work(&self) -> &Work {
+        &*self.work.get()
+    }
+}
+
+/// Counters over a run (rapier-style per-stage counters).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RigidCounters {
+    /// Rigid-body sub-steps taken.
+    pub substeps: u64,
+    /// Owned contacts summed over blocks and sub-steps.
+    pub contacts: u64,
+    /// Largest penetration seen in any owned contact.
+    pub max_penetration: f64,
+}
+
+/// All rigid bodies of a run, distributed over the blocks.
+pub struct Particles {
+    /// Solver parameters (gravity, buoyancy, restitution, friction, iterations, ...).
+    pub params: RigidParams,
+    /// Sub-steps S per time step.
+    pub subcycles: usize,
+    /// Time per step (1 in lattice units; fluid-off scenes may choose another).
+    pub dt: f64,
+    /// Per-block state, in block id order.
+    pub blocks: Vec<BlockBodies>,
+    /// Whether a block gets rigid-body tasks in the current graph (see [`Particles::update_active`]).
+    pub active: Vec<bool>,
+    /// Counters.
+    pub counters: RigidCounters,
+    domain: DomainSpec,
+    halo: f64,
+    max_radius: f64,
+    /// Largest distance a body may move in one sub-step.
+    max_move: f64,
+    errors: Mutex<Vec<(u64, usize, String)>>,
+}
+
+fn dist_to_box(x: DVec3, lo: DVec3, hi: DVec3) -> f64 {
+    let d = (lo - x).max(x - hi).max(DVec3::ZERO);
+    d.length()
+}
+
+impl Particles {
+    /// Distributes `bodies` over the blocks of `domain`. Checks ids (unique), radii, densities, positions
+    /// (inside the domain) and that the block size leaves room for the halo; the messages name the body.
+    pub fn new(
+        domain: DomainSpec,
+        bodies: Vec<Body>,
+        planes: Vec<Plane>,
+        params: RigidParams,
+        subcycles: usize,
+        dt: f64,
+    ) -> Result<Self> {
+        let cells = domain.cells();
+        let len = DVec3::new(cells[0] as f64, cells[1] as f64, cells[2] as f64);
+        let mut ids: Vec<u64> = bodies.iter().map(|b| b.id).collect();
+        ids.sort_unstable();
+        if let Some(w) = ids.windows(2).find(|w| w[0] == w[1]) {
+            return config_err(format!("particles: body id {} is used twice", w[0]));
+        }
+        for b in &bodies {
+            if !(b.radius > 0.0 && b.radius.is_finite() && b.density > 0.0 && b.density.is_finite()) {
+                return config_err(format!(
+                    "particles: body {} has radius {} and density {}; both must be finite and > 0",
+                    b.id, b.radius, b.density
+                ));
+            }
+            let p = b.position;
+            if !p.is_finite() || (0..3).any(|a| p[a] < 0.0 || p[a] > len[a]) {
+                return config_err(format!(
+                    "particles: body {} at ({}, {}, {}) lies outside the {:?}-cell domain",
+                    b.id, p.x, p.y, p.z, cells
+                ));
+            }
+        }
+        let max_radius = bodies.iter().map(|b| b.radius).fold(0.0, f64::max);
+        let halo = max_radius + params.contact_margin;
+        let min_edge = domain.block_size.iter().copied().min().unwrap_or(1) as f64;
+        let max_move = min_edge - 2.0 * max_radius - params.contact_margin;
+        let all_fixed = bodies.iter().all(|b| b.fixed);
+        // Fixed bodies only need to be seen by the blocks they reach (radius + ghost layer within a
+        // neighbour); moving ones need room for the contact halo and a sub-step's motion.
+        let too_small = if all_fixed {
+            max_radius + 1.0 >= min_edge
+        } else {
+            max_move <= 0.0
+        };
+        if !bodies.is_empty() && too_small {
+            return config_err(format!(
+                "domain.block_size = {:?}: blocks must be larger than a particle diameter plus the contact margin \
+                 ({} cells here); use fewer, larger blocks",
+                domain.block_size,
+                2.0 * max_radius + params.contact_margin
+            ));
+        }
+        let nb = domain.num_blocks();
+        let mut blocks: Vec<BlockBodies> = (0..nb).map(|id| block_bodies(&domain, id, &planes, halo)).collect();
+        let mut sorted = bodies;
+        sorted.sort_by_key(|b| b.id);
+        let mut parts = Particles {
+            params,
+            subcycles,
+            dt,
+            blocks: Vec::new(),
+            active: vec![false; nb],
+            counters: RigidCounters::default(),
+            domain,
+            halo,
+            max_radius,
+            max_move,
+            errors: Mutex::new(Vec::new()),
+        };
+        for mut b in sorted {
+            b.position = parts.wrap(b.position);
+            let h = parts.home(b.position);
+            let out = blocks[h].published[0].get_mut();
+            out.bodies.push(b);
+            out.homes.push(h as u32);
+        }
+        parts.blocks = blocks;
+        Ok(parts)
+    }
+
+    /// Whether any body can move (fixed bodies alone are mapped once and need no rigid-body tasks).
+    pub fn has_moving(&self) -> bool {
+        self.bodies(0).iter().chain(self.bodies(1).iter()).any(|b| !b.fixed)
+    }
+
+    /// The block decomposition the bodies live on.
+    pub fn domain(&self) -> &DomainSpec {
+        &self.domain
+    }
+
+    /// Time of one sub-step.
+    pub fn dt_sub(&self) -> f64 {
+        self.dt / self.subcycles as f64
+    }
+
+    /// The halo width: a body within `radius + halo` of a block's box is present in that block.
+    pub fn halo(&self) -> f64 {
+        self.halo
+    }
+
+    /// The home block of a (wrapped) position: the block containing it, clamped to the domain.
+    pub fn home(&self, x: DVec3) -> usize {
+        let d = &self.domain;
+        let c: [usize; 3] = std::array::from_fn(|a| {
+            let i = (x[a] / d.block_size[a] as f64).floor();
+            if i.is_nan() || i < 0.0 {
+                0
+            } else {
+                (i as usize).min(d.blocks[a] - 1)
+            }
+        });
+        d.id(c)
+    }
+
+    /// Wraps a position into `[0, L)` along periodic axes (one period at most: bodies move less than a
+    /// block per sub-step).
+    pub fn wrap(&self, mut x: DVec3) -> DVec3 {
+        let cells = self.domain.cells();
+        for a in 0..3 {
+            if self.domain.periodic[a] {
+                let l = cells[a] as f64;
+                if x[a] >= l {
+                    x[a] -= l;
+                } else if x[a] < 0.0 {
+                    x[a] += l;
+                }
+            }
+        }
+        x
+    }
+
+    /// Parity of the published lists holding the state after `steps` whole steps.
+    pub fn parity(&self, steps: u64) -> usize {
+        ((steps * self.subcycles as u64) % 2) as usize
+    }
+
+    /// All bodies after `steps` whole steps, sorted by id (the global view for output and observables).
+    pub fn bodies(&self, steps: u64) -> Vec<Body> {
+        let p = self.parity(steps);
+        // SAFETY: called between graph runs (nothing runs concurrently).
+        let mut all: Vec<Body> = self
+            .blocks
+            .iter()
+            .flat_map(|b| unsafe { b.published(p) }.bodies.iter().copied())
+            .collect();
+        all.sort_by_key(|b| b.id);
+        all
+    }
+
+    /// A hash of the exact bits of every body's state (id, position, orientation, velocities), combined
+    /// by wrapping addition: independent of the block layout, process count and order.
+    pub fn checksum(&self, steps: u64) -> u64 {
+        let mut sum = 0u64;
+        for b in self.bodies(steps) {
+            let mut h = mix(0x243f_6a88_85a3_08d3 ^ b.id);
+            let q = b.orientation;
+            for v in [
+                b.position.x,
+                b.position.y,
+                b.position.z,
+                q.x,
+                q.y,
+                q.z,
+                q.w,
+                b.velocity.x,
+                b.velocity.y,
+                b.velocity.z,
+                b.angular_velocity.x,
+                b.angular_velocity.y,
+                b.angular_velocity.z,
+            ] {
+                h = mix(h ^ v.to_bits());
+            }
+            sum = sum.wrapping_add(h);
+        }
+        sum
+    }
+
+    /// Marks the blocks that get rigid-body tasks for the next `steps` steps: every block a body (with
+    /// its halo) can reach in that time, from a bound on its travel (twice the distance at the current
+    /// largest speed and acceleration, plus one cell). A body that still leaves this region stops the
+    /// run with an error naming it (checked in `rb_sync`). Returns whether the set changed.
+    pub fn update_active(&mut self, steps: u64, bodies: &[Body]) -> bool {
+        let t = steps as f64 * self.dt;
+        let g = self.params.gravity.length();
+        let d = self.domain;
+        let mut active = vec![false; self.blocks.len()];
+        for b in bodies {
+            let a = g + b.force.length() / b.mass();
+            let travel = 2.0 * (b.velocity.length() * t + a * t * t) + 1.0;
+            let reach = b.radius + self.halo + travel;
+            let mut lo = [0i64; 3];
+            let mut hi = [0i64; 3];
+            for ax in 0..3 {
+                let bs = d.block_size[ax] as f64;
+                let n = d.blocks[ax] as i64;
+                let (lf, hf) = (
+                    ((b.position[ax] - reach) / bs).floor(),
+                    ((b.position[ax] + reach) / bs).floor(),
+                );
+                // In f64 first: a runaway body (huge or non-finite reach) must not overflow the block range.
+                let (l, h) = (
+                    lf.clamp(-(n as f64), 2.0 * n as f64) as i64,
+                    hf.clamp(-(n as f64), 2.0 * n as f64) as i64,
+                );
+                if d.periodic[ax] {
+                    let span = hf - lf + 1.0;
+                    if span.is_nan() || span >= n as f64 {
+                        (lo[ax], hi[ax]) = (0, n - 1);
+                    } else {
+                        (lo[ax], hi[ax]) = (l, h);
+                    }
+                } else {
+                    (lo[ax], hi[ax]) = (l.clamp(0, n - 1), h.clamp(0, n - 1));
+                }
+            }
+            for z in lo[2]..=hi[2] {
+                for y in lo[1]..=hi[1] {
+                    for x in lo[0]..=hi[0] {
+                        let c = [x, y, z];
+                        let w: [usize; 3] = std::array::from_fn(|a| c[a].rem_euclid(d.blocks[a] as i64) as usize);
+                        active[d.id(w)] = true;
+                    }
+                }
+            }
+        }
+        let changed = active != self.active;
+        self.active = active;
+        changed
+    }
+
+    /// Records a failure found by a task (reported after the graph run, lowest sub-step then block first).
+    pub(crate) fn fail(&self, substep: u64, block: usize, msg: String) {
+        self.errors.lock().expect("particle errors").push((substep, block, msg));
+    }
+
+    /// The first failure recorded since the last call, if any.
+    pub fn take_error(&self) -> Option<String> {
+        let mut e = self.errors.lock().expect("particle errors");
+        e.sort_by_key(|x| (x.0, x.1));
+        let first = e.first().map(|x| x.2.clone());
+        e.clear();
+        first
+    }
+
+    /// Adds the per-block statistics gathered since the last call to the counters, in block order (call
+    /// between graph runs).
+    pub fn collect_stats(&mut self, substeps: u64) {
+        let mut contacts = 0u64;
+        for b in self.blocks.iter_mut() {
+            let w = b.work.get_mut();
+            contacts += w.contacts_total;
+            self.counters.max_penetration = self.counters.max_penetration.max(w.max_penetration_total);
+            w.contacts_total = 0;
+            w.max_penetration_total = 0.0;
+        }
+        self.counters.substeps += substeps;
+        self.counters.contacts += contacts;
+    }
+
+    /// Largest penetration and number of contacts of the last sub-step, over all blocks (block order).
+    pub fn last_contacts(&self) -> (usize, f64) {
+        let mut n = 0;
+        let mut pen: f64 = 0.0;
+        for b in self.blocks.iter().filter(|b| self.active[b.id]) {
+            // SAFETY: between graph runs.
+            let w = unsafe { b.work() };
+            n += w.contacts;
+            pen = pen.max(w.max_penetration);
+        }
+        (n, pen)
+    }
+
+    /// Largest radius.
+    pub fn max_radius(&self) -> f64 {
+        self.max_radius
+    }
+
+    /// Advances `steps` steps without the scheduler: every sub-step runs `rb` on all active blocks, then
+    /// `rb_sync` on all of them, in block order. The reference the task graph must reproduce bitwise.
+    pub fn advance_serial(&mut self, start_step: u64, steps: u64) -> std::result::Result<(), String> {
+        let bodies = self.bodies(start_step);
+        self.update_active(steps, &bodies);
+        let s = self.subcycles as u64;
+        for k in 0..steps * s {
+            let g = start_step * s + k + 1;
+            for b in 0..self.blocks.len() {
+                if self.active[b] {
+                    // SAFETY: serial: no task runs concurrently.
+                    unsafe { self.rb(b, g) };
+                }
+            }
+            for b in 0..self.blocks.len() {
+                if self.active[b] {
+                    // SAFETY: as above.
+                    unsafe { self.rb_sync(b, g) };
+                }
+            }
+            self.collect_stats(1);
+            if let Some(e) = self.take_error() {
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Builds the bookkeeping of block `id`: box, neighbour list with periodic shifts, nearby planes.
+fn block_bodies(d: &DomainSpec, id: usize, planes: &[Plane], halo: f64) -> BlockBodies {
+    let o = d.origin(id);
+    let s = d.block_size;
+    let lo = DVec3::new(o[0] as f64, o[1] as f64, o[2] as f64);
+    let hi = lo + DVec3::new(s[0] as f64, s[1] as f64, s[2] as f64);
+    let cells = d.cells();
+    let c = d.coords(id);
+    let mut neighbours = vec![Neighbour {
+        block: id,
+        shift: DVec3::ZERO,
+    }];
+    for off in NEIGHBOURS {
+        let Some(n) = d.neighbour(id, off) else {
+            continue;
+        };
+        let mut shift = DVec3::ZERO;
+        for a in 0..3 {
+            let v = c[a] as i64 + off[a] as i64;
+            if v < 0 {
+                shift[a] = -(cells[a] as f64);
+            } else if v >= d.blocks[a] as i64 {
+                shift[a] = cells[a] as f64;
+            }
+        }
+        let nb = Neighbour { block: n, shift };
+        if !neighbours.contains(&nb) {
+            neighbours.push(nb);
+        }
+    }
+    let mut near: Vec<usize> = neighbours.iter().map(|n| n.block).collect();
+    near.sort_unstable();
+    near.dedup();
+    // A local body (centre inside the box) touches a plane only if some point of the box lies within
+    // r_max + margin = halo of it: the lowest signed distance over the 8 corners decides.
+    let near_planes = planes
+        .iter()
+        .filter(|p| {
+            let mut m = f64::INFINITY;
+            for k in 0..8 {
+                let x = DVec3::new(
+                    if k & 1 == 0 { lo.x } else { hi.x },
+                    if k & 2 == 0 { lo.y } else { hi.y },
+                    if k & 4 == 0 { lo.z } else { hi.z },
+                );
+                m = m.min(p.distance(x));
+            }
+            m <= halo
+        })
+        .copied()
+        .collect();
+    BlockBodies {
+        id,
+        lo,
+        hi,
+        neighbours,
+        near,
+        planes: near_planes,
+        published: [
+            UnsafeCell::new(Published::default()),
+            UnsafeCell::new(Published::default()),
+        ],
+        work: UnsafeCell::new(Work::default()),
+    }
+}

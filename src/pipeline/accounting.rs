@@ -1,0 +1,144 @@
+//! Task accounting: every task's measured thread CPU time into the run's totals (per part, per kind, per
+//! skip rule) and the record of the last graph run ([`RunRecord`]) that the time loop and its observers
+//! read.
+
+use super::kinds::{ByKind, Payload};
+use super::messages::MessageSizes;
+use super::skip::ByRule;
+use super::{BlockPartNs, Pipeline};
+use crate::metrics::cost_model::RecordedRun;
+use crate::physics::parts::{ByPart, Part};
+use crate::physics::simulation::Simulation;
+use blockflow_kernels::Real;
+use blockflow_scheduler::{TaskGraph, TaskRecord};
+
+/// Totals over a run.
+#[derive(Clone, Debug, Default)]
+pub struct Totals {
+    /// CPU seconds per part.
+    pub part_cpu: ByPart<f64>,
+    /// Tasks executed.
+    pub tasks: u64,
+    /// Cross-process message bytes.
+    pub message_bytes: u64,
+    /// Cross-process messages.
+    pub remote_messages: u64,
+    /// Ghost regions copied directly inside a process.
+    pub local_copies: u64,
+    /// Tasks executed per kind (index: [`super::kinds::TaskKind::index`]).
+    pub tasks_by_kind: ByKind<u64>,
+    /// CPU seconds per task kind.
+    pub cpu_by_kind: ByKind<f64>,
+    /// With `run.no_skip`: the work done only because a skip rule was off, per rule (index:
+    /// [`super::SkipRule`] as `usize`): tasks that would not exist (`outside`, `no_boundary`,
+    /// `no_particles`, `static_map`) and sweeps that took the general path instead of the fused kernel
+    /// (`fused_kernel`). Zero without `run.no_skip`.
+    pub unskipped: ByRule<u64>,
+    /// With `run.no_skip`: CPU seconds of the work counted in `unskipped`, per rule (for `fused_kernel`
+    /// the whole general-path sweeps of the fluid blocks, to be compared with the fused sweeps' time).
+    pub unskipped_cpu: ByRule<f64>,
+}
+
+/// What the last graph run recorded (owned by the pipeline, lent out as a [`RunRecord`]).
+#[derive(Clone, Debug, Default)]
+pub(super) struct LastRun {
+    pub(super) steps: usize,
+    pub(super) durations_ns: Vec<u64>,
+    pub(super) wall_seconds: f64,
+    pub(super) block_load: Vec<f64>,
+    pub(super) message_bytes: u64,
+    pub(super) block_part_ns: Vec<BlockPartNs>,
+}
+
+/// The record of one graph run.
+#[derive(Clone, Copy)]
+pub struct RunRecord<'a> {
+    /// The graph that ran.
+    pub graph: &'a TaskGraph,
+    /// Thread CPU nanoseconds of every task (index = task id).
+    pub durations_ns: &'a [u64],
+    /// Steps of the run.
+    pub steps: usize,
+    /// Wall-clock seconds of the run.
+    pub wall_seconds: f64,
+    /// Workload m_tot (eq. 16: CPU seconds of every task but the exchange) per block, in block-id order.
+    pub block_load: &'a [f64],
+    /// Bytes of the cross-process messages of the run.
+    pub message_bytes: u64,
+    /// With [`super::PipelineConfig::block_parts`]: CPU nanoseconds per part of every (step in the run,
+    /// block), index `step * blocks + block`: the m_X of section 3.
+    pub block_part_ns: Option<&'a [BlockPartNs]>,
+    /// What the ghost-region edges carry.
+    pub sizes: &'a MessageSizes,
+}
+
+impl<'a> RunRecord<'a> {
+    /// The run as the cost model sees it.
+    pub fn recorded(&self) -> RecordedRun<'a> {
+        RecordedRun {
+            graph: self.graph,
+            durations_ns: self.durations_ns,
+            steps: self.steps,
+            tasks: self.sizes,
+        }
+    }
+}
+
+impl<T: Real> Pipeline<T> {
+    /// Adds one graph run's task times to the totals and keeps them as the last run.
+    pub(super) fn account(
+        &mut self,
+        graph: &TaskGraph,
+        records: &[TaskRecord],
+        wall: f64,
+        sim: &Simulation<T>,
+        k: usize,
+    ) {
+        let nb = sim.blocks.len();
+        let last = &mut self.last;
+        last.steps = k;
+        last.wall_seconds = wall;
+        last.durations_ns.clear();
+        last.block_load.clear();
+        last.block_load.resize(nb, 0.0);
+        let record_parts = self.settings.block_parts;
+        if record_parts {
+            last.block_part_ns.clear();
+            last.block_part_ns.resize(k * nb, ByPart::default());
+        }
+        let rule_of = self.counts.get(&k).map(|c| c.rule_of.as_slice()).unwrap_or(&[]);
+        let t = &mut self.totals;
+        for (i, (spec, r)) in graph.specs().iter().zip(records).enumerate() {
+            let cpu = r.cpu_ns as f64 * 1e-9;
+            let part = Part::from_index(spec.part);
+            let payload = Payload::of(spec);
+            t.part_cpu[part] += cpu;
+            t.cpu_by_kind[payload.kind.index()] += cpu;
+            if let Some(Some(rule)) = rule_of.get(i) {
+                t.unskipped_cpu[*rule as usize] += cpu;
+            }
+            if record_parts {
+                last.block_part_ns[payload.step * nb + spec.block as usize][part] += r.cpu_ns;
+            }
+            if part.is_workload() {
+                last.block_load[spec.block as usize] += cpu;
+            }
+            last.durations_ns.push(r.cpu_ns);
+        }
+        t.tasks += records.len() as u64;
+        if let Some(c) = self.counts.get(&k) {
+            for (x, n) in t.tasks_by_kind.iter_mut().zip(c.by_kind) {
+                *x += n;
+            }
+            for (x, n) in t.unskipped.iter_mut().zip(c.by_rule) {
+                *x += n;
+            }
+        }
+        let (bytes, remote) = self.plan.remote_per_step(sim);
+        let local: u64 = sim.blocks.iter().map(|b| b.recv.len() as u64).sum::<u64>() - remote;
+        t.message_bytes += bytes * k as u64;
+        t.remote_messages += remote * k as u64;
+        t.local_copies += local * k as u64;
+        last.message_bytes = bytes * k as u64;
+    }
+}
