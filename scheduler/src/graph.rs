@@ -248,7 +248,8 @@ pub struct TaskRecord {
     pub start_ns: u64,
     /// Wall-clock end, nanoseconds since the run began.
     pub end_ns: u64,
-    /// Thread CPU time spent in the task (CLOCK_THREAD_CPUTIME_ID), nanoseconds.
+    /// Thread CPU time spent in the task (CLOCK_THREAD_CPUTIME_ID), nanoseconds: the CPU time of the
+    /// worker's batch shared by wall duration (see the executor's timing notes).
     pub cpu_ns: u64,
 }
 

@@ -57,6 +57,11 @@ impl Config {
         self.processes.validate()?;
         self.particles.validate()?;
         self.balance.validate()?;
+        if !self.fluid.enabled && !self.particles.enabled {
+            return crate::error::config_err(
+                "fluid.enabled = false and particles.enabled = false: nothing is left to simulate; enable one",
+            );
+        }
         self.run.validate()
     }
 

@@ -48,6 +48,10 @@ pub struct ParticlesConfig {
     /// without it, spheres lighter than about twice the fluid's density oscillate and blow up).
     #[serde(default = "yes")]
     pub force_averaging: bool,
+    /// `false` leaves the scene's bodies out: the fluid runs alone on the same blocks and geometry (to
+    /// measure what the bodies cost, `blockflow bench coupled`).
+    #[serde(default = "yes")]
+    pub enabled: bool,
 }
 
 fn d_subcycles() -> usize {
@@ -66,7 +70,7 @@ fn d_relaxation() -> f64 {
     1.0
 }
 fn d_grid_threshold() -> usize {
-    32
+    128
 }
 fn d_position_correction() -> f64 {
     0.2
@@ -88,6 +92,7 @@ impl Default for ParticlesConfig {
             dt: None,
             boundary: Default::default(),
             force_averaging: true,
+            enabled: true,
         }
     }
 }

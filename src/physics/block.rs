@@ -22,6 +22,24 @@ pub struct GhostRecv {
     pub from: usize,
     /// PDF directions that stream from the ghost region into this block.
     pub directions: Vec<usize>,
+    /// What an in-process copy moves: for direction `directions[k]`, the runs
+    /// `runs[run_starts[k] .. run_starts[k + 1]]`, ghost cells whose value in that direction streams
+    /// into an interior fluid cell (the rest of the region is never read).
+    pub runs: Vec<GhostRun>,
+    /// Start of each direction's runs in `runs`, plus one entry past the last.
+    pub run_starts: Vec<u32>,
+}
+
+/// Consecutive cells along x of a ghost region and the sender's cells that fill them (element indices
+/// without the direction's offset).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GhostRun {
+    /// First cell in the sender's interior.
+    pub src: u32,
+    /// First ghost cell of the receiver.
+    pub dst: u32,
+    /// Number of cells.
+    pub len: u32,
 }
 
 /// Per-block state of the fluid.
@@ -205,10 +223,13 @@ impl<T: Real> Block<T> {
                         })
                 });
                 if needed {
+                    let (runs, run_starts) = ghost_runs(&layout, &fl, off, &dirs);
                     recv.push(GhostRecv {
                         offset: off,
                         from,
                         directions: dirs,
+                        runs,
+                        run_starts,
                     });
                 }
             }
@@ -454,6 +475,49 @@ pub fn source_ranges(l: &Layout, off: [i32; 3]) -> [std::ops::RangeInclusive<usi
 // writes the field nobody else reads during that step. The graph's edges order every pair of tasks whose
 // accesses to the same elements conflict (documented in `pipeline`).
 unsafe impl<T: Real> Sync for Block<T> {}
+
+/// The copy plan of the ghost region at offset `off` (see [`GhostRecv::runs`]): per direction of `dirs`,
+/// the runs of ghost cells g that are fluid and whose g + c_q is an interior fluid cell, row by row.
+fn ghost_runs(l: &Layout, fl: &[u8], off: [i32; 3], dirs: &[usize]) -> (Vec<GhostRun>, Vec<u32>) {
+    let [gx, gy, gz] = ghost_ranges(l, off);
+    let [sx, sy, sz] = source_ranges(l, off);
+    let full = l.full();
+    let interior = |c: [i64; 3]| (0..3).all(|a| c[a] >= 1 && c[a] <= full[a] as i64 - 2);
+    let (mut runs, mut starts) = (Vec::new(), Vec::with_capacity(dirs.len() + 1));
+    for &q in dirs {
+        starts.push(runs.len() as u32);
+        for (zg, zs) in gz.clone().zip(sz.clone()) {
+            for (yg, ys) in gy.clone().zip(sy.clone()) {
+                let mut open: Option<GhostRun> = None;
+                for (xg, xs) in gx.clone().zip(sx.clone()) {
+                    let t = [
+                        xg as i64 + C[q][0] as i64,
+                        yg as i64 + C[q][1] as i64,
+                        zg as i64 + C[q][2] as i64,
+                    ];
+                    let needed = fl[l.idx(xg, yg, zg)] & flags::FLUID != 0
+                        && interior(t)
+                        && fl[l.idx(t[0] as usize, t[1] as usize, t[2] as usize)] & flags::FLUID != 0;
+                    match (&mut open, needed) {
+                        (Some(r), true) => r.len += 1,
+                        (None, true) => {
+                            open = Some(GhostRun {
+                                src: l.idx(xs, ys, zs) as u32,
+                                dst: l.idx(xg, yg, zg) as u32,
+                                len: 1,
+                            })
+                        }
+                        (Some(_), false) => runs.extend(open.take()),
+                        (None, false) => {}
+                    }
+                }
+                runs.extend(open);
+            }
+        }
+    }
+    starts.push(runs.len() as u32);
+    (runs, starts)
+}
 
 /// The ghost cells of the region at neighbour offset `off`, z slowest.
 pub fn ghost_region(l: &Layout, off: [i32; 3]) -> impl Iterator<Item = (usize, usize, usize)> {

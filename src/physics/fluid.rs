@@ -8,7 +8,7 @@
 //! boundary → stream with the cycle cut after the collision.
 
 use crate::config::KernelChoice;
-use crate::physics::block::{ghost_ranges, source_ranges, Block};
+use crate::physics::block::{ghost_ranges, source_ranges, Block, GhostRecv};
 use blockflow_kernels::d3q19::Q;
 use blockflow_kernels::sweep::{self, SweepStats};
 use blockflow_kernels::{Real, TrtParams};
@@ -62,9 +62,33 @@ pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usi
     assert_eq!(k, buf.len(), "message size does not match the ghost region");
 }
 
-/// Direct copy inside a process: the sender's interior layer straight into the receiver's ghost region
-/// (field `p` of both; the two may be the same block on a periodic axis: the regions are disjoint).
-pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize]) {
+/// Direct copy inside a process by the region's plan ([`GhostRecv::runs`]): the sender's interior cells
+/// straight into the receiver's ghost cells that feed its fluid (field `p` of both; the two may be the
+/// same block on a periodic axis: the regions are disjoint).
+pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, g: &GhostRecv) {
+    let stride = receiver.layout.stride;
+    let src = sender.field(p).raw();
+    let dst = receiver.field(p).raw();
+    for (k, &q) in g.directions.iter().enumerate() {
+        let base = q * stride;
+        let runs = &g.runs[g.run_starts[k] as usize..g.run_starts[k + 1] as usize];
+        for r in runs {
+            // SAFETY: interior source cells and ghost destination cells never overlap; the graph orders
+            // this copy after the sender's sweep and before anything else touches these elements.
+            unsafe {
+                copy_run(
+                    src.add(base + r.src as usize),
+                    dst.add(base + r.dst as usize),
+                    r.len as usize,
+                )
+            };
+        }
+    }
+}
+
+/// Direct copy of the whole ghost region at offset `off` (every cell, directions `dirs`), inside a
+/// process: what [`copy_ghost`] does with the plan switched off (`run.no_skip`).
+pub fn copy_ghost_region<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize]) {
     let l = receiver.layout;
     let src = sender.field(p).raw();
     let dst = receiver.field(p).raw();
@@ -77,8 +101,7 @@ pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, off
             for (ys, yg) in sy.clone().zip(gy.clone()) {
                 let i = base + l.idx(*sx.start(), ys, zs);
                 let j = base + l.idx(*gx.start(), yg, zg);
-                // SAFETY: interior source cells and ghost destination cells never overlap; the graph orders
-                // this copy after the sender's sweep and before anything else touches these elements.
+                // SAFETY: as in `copy_ghost`.
                 unsafe { copy_run(src.add(i), dst.add(j), n) };
             }
         }

@@ -3,6 +3,7 @@
 //! cells that changed state, and the per-body force partial sums of the block's links. Written by the
 //! mapping, reconstruction and surface-boundary stages of [`super::coupling`]; held by [`super::block::Block`].
 
+use super::coupling::rows::CellBits;
 use blockflow_kernels::sweep::Segment;
 use glam::DVec3;
 
@@ -21,21 +22,53 @@ pub struct MapBody {
     pub radius: f64,
 }
 
-/// A fluid cell's link into a particle cell.
-#[derive(Clone, Copy, Debug)]
-pub struct ParticleLink {
+/// A fluid cell with links into particle cells: bit q of `dirs` (q = 1..18) is set when the cell at
+/// x_f + c_q is covered by a body. The surface boundary pass derives each link's body, δ_q and second
+/// cell from the cell, the direction and the mapped bodies.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LinkCell {
     /// Element index of the fluid cell x_f.
-    pub fluid: usize,
-    /// Outgoing direction q (c_q points into the body).
-    pub q: u8,
-    /// Index of the body in [`ParticleCells::bodies`].
-    pub body: u32,
-    /// δ_q in (0, 1] (1/2 for simple bounce-back).
-    pub delta: f64,
-    /// Element index of the second fluid cell x_f − c_q for CLI; `None`: simple bounce-back.
-    pub second: Option<usize>,
-    /// Offset x_f − X of the fluid cell centre from the body centre (minimum image).
-    pub rel: DVec3,
+    pub cell: u32,
+    /// Directions with a link, one bit per q.
+    pub dirs: u32,
+    /// Ghost-inclusive coordinates of the cell (`Layout::coords` of `cell`).
+    pub xyz: [u32; 3],
+}
+
+/// What the mapping derives once from a block's static geometry: fluid and near-wall cells as bit rows,
+/// and where each interior row's static fluid runs start in the block's segment list.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct StaticRows {
+    /// Static fluid cells.
+    pub fluid: CellBits,
+    /// Static fluid cells next to a wall (NEAR_BOUNDARY).
+    pub near_wall: CellBits,
+    /// Index of the first static segment of interior row (y, z) in `Block::segments`, row
+    /// `(y − 1) + (fy − 2)(z − 1)`, plus one entry past the last row.
+    pub row_segments: Vec<u32>,
+}
+
+/// Where each interior row's part of the mapping's lists starts, so that a row whose neighbourhood did
+/// not change can be copied from the previous mapping instead of derived again. Rows are numbered
+/// `(y − 1) + (fy − 2)(z − 1)`; each start vector has one entry past the last row.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct RowIndex {
+    /// Whether the index describes the overlay's current lists.
+    pub valid: bool,
+    /// First entry of each row in [`ParticleCells::segments`].
+    pub segments: Vec<u32>,
+    /// First entry of each row in [`ParticleCells::link_cells`].
+    pub link_cells: Vec<u32>,
+    /// Per row: fluid cells, near-boundary cells, cells with a particle link.
+    pub counts: Vec<[u32; 3]>,
+}
+
+/// Buffers of the mapping's lists, kept between mappings so that a step allocates nothing.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct SpareLists {
+    pub segments: Vec<Segment>,
+    pub link_cells: Vec<LinkCell>,
+    pub index: RowIndex,
 }
 
 /// Hydrodynamic force and torque the block's links put on one body.
@@ -56,8 +89,18 @@ pub struct ParticleCells {
     pub owner: Vec<u64>,
     /// The previous mapping's buffer, reused.
     pub(crate) owner_spare: Vec<u64>,
-    /// Scratch: cells next to a particle cell.
-    pub(crate) mark: Vec<bool>,
+    /// Scratch: the cells of `owner` that are covered, as bit rows (empty: not derived yet).
+    pub(crate) occupied: CellBits,
+    /// The previous mapping's bit rows, reused.
+    pub(crate) occupied_spare: CellBits,
+    /// Scratch: the block's static rows (derived on first use).
+    pub(crate) statics: StaticRows,
+    /// Scratch: where each row's entries of the lists start (kept from one mapping to the next).
+    pub(crate) row_index: RowIndex,
+    /// Scratch of the surface boundary pass: a batch of links.
+    pub(crate) link_batch: Box<blockflow_kernels::link_batch::LinkBatch>,
+    /// The previous mapping's lists and row index, reused as buffers.
+    pub(crate) spare: SpareLists,
     /// Whether any cell of `owner` is covered.
     pub(crate) owned: bool,
     /// Runs of interior cells that are fluid now (static fluid and not covered by a body).
@@ -70,8 +113,8 @@ pub struct ParticleCells {
     pub near_boundary_cells: usize,
     /// The bodies mapped in this step (locals and shadows), sorted by id.
     pub bodies: Vec<MapBody>,
-    /// Links from fluid cells into particle cells, in cell order.
-    pub links: Vec<ParticleLink>,
+    /// The fluid cells with links into particle cells, in cell order.
+    pub link_cells: Vec<LinkCell>,
     /// Interior cells that turned from solid to fluid in this step, with the id of the body that left.
     pub turned: Vec<(usize, u64)>,
     /// Interior cells that a body covered in this step (fluid to solid), with its id.

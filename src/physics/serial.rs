@@ -14,7 +14,7 @@ pub fn step<T: Real>(sim: &mut Simulation<T>) -> Result<(), Instability> {
     let p = sim.parity();
     for b in &sim.blocks {
         for r in &b.recv {
-            fluid::copy_ghost(&sim.blocks[r.from], b, p, r.offset, &r.directions);
+            fluid::copy_ghost(&sim.blocks[r.from], b, p, r);
         }
     }
     let mut stats = Vec::with_capacity(sim.blocks.len());

@@ -54,9 +54,9 @@ impl<T: Real> Dispatch<'_, T> {
                 let parts = sim.particles.as_ref().expect("map tasks only exist with particles");
                 if b.fluid_cells == 0 {
                     // `run.no_skip` only: a block without fluid never gets an overlay.
-                    coupling::tasks::map_scratch(parts, b, step, surface)
+                    coupling::tasks::map_scratch(parts, b, step)
                 } else {
-                    coupling::tasks::map_task(parts, b, step, surface, self.no_skip)
+                    coupling::tasks::map_task(parts, b, step, self.no_skip)
                 }
             }
             TaskKind::Reconstruct => {
@@ -83,7 +83,10 @@ impl<T: Real> Dispatch<'_, T> {
                             let buf = self.plan.slots[s].lock().expect("slot");
                             fluid::unpack(b, p, g.offset, &g.directions, &buf)
                         }
-                        None => fluid::copy_ghost(&blocks[g.from], b, p, g.offset, &g.directions),
+                        None if self.no_skip => {
+                            fluid::copy_ghost_region(&blocks[g.from], b, p, g.offset, &g.directions)
+                        }
+                        None => fluid::copy_ghost(&blocks[g.from], b, p, g),
                     }
                 }
             }
@@ -96,7 +99,7 @@ impl<T: Real> Dispatch<'_, T> {
                 }
                 if b.particle_cells().is_some() {
                     // The boundary task is the only user of b's overlay and particle cells now.
-                    coupling::boundary(b, b.particle_cells_mut(), p)
+                    coupling::boundary(&sim.domain, b, b.particle_cells_mut(), p, surface)
                 }
             }
             TaskKind::Sweep => {

@@ -250,7 +250,7 @@ impl<T: Real> Pipeline<T> {
                     b.fluid_cells > 0
                         && b.particle_cells().is_some()
                         && (moving && sim.particles.as_ref().is_some_and(|p| p.active[b.id])
-                            || b.particle_cells().is_some_and(|pc| !pc.links.is_empty()))
+                            || b.particle_cells().is_some_and(|pc| !pc.link_cells.is_empty()))
                 })
                 .collect();
             let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);

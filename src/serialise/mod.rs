@@ -35,7 +35,8 @@
 //! - `overlay` (only if the block has a particle overlay): everything of [`ParticleCells`] except its
 //!   scratch buffers. `owner` (read by the next mapping to find the cells that turn fluid, and by the
 //!   reconstruction) run-length coded over the ghost-inclusive cells; `owned`; the fluid-cell counts;
-//!   segments, mapped bodies, links, turned and covered cells, exchanged momentum and the last forces.
+//!   segments, mapped bodies, link cells (cell, directions), turned and covered cells, exchanged momentum
+//!   and the last forces.
 //!   Most of it is rebuilt by the next `map` task, but not all blocks get one (fixed bodies are mapped
 //!   once; inactive blocks keep their overlay), the checksum and Table 1 read segments and counts
 //!   between steps, and total forces read `forces`: carrying it all keeps every reader exact.
@@ -49,7 +50,7 @@
 //!   bodies, velocity changes, and the contact counters (K of Table 1, statistics for the summary).
 //!
 //! Not carried, on purpose: the ghost layers and the other PDF field (rewritten before they are read;
-//! the continuation tests prove it bitwise), the static block structure (segments, links, receive lists,
+//! the continuation tests prove it bitwise), the static block structure (segments, wall links, receive lists,
 //! neighbour lists and planes of the rigid-body bookkeeping: rebuilt from the geometry, which `flags`
 //! checks), the other parity's published list (stale: overwritten by the next sub-step before anyone
 //! reads it; the decoder clears it), and the global particle state in [`crate::physics::particles::Particles`]:
@@ -66,7 +67,7 @@ pub use read::decode_block;
 pub use write::{encode_block, encoded_len};
 
 /// Version of the block format written by [`encode_block`]; the decoder accepts only this one.
-pub const BLOCK_FORMAT_VERSION: u32 = 1;
+pub const BLOCK_FORMAT_VERSION: u32 = 2;
 /// First bytes of every encoded block.
 pub const MAGIC: [u8; 5] = *b"BFBLK";
 /// Bytes of the fixed header (before the section table).

@@ -4,7 +4,7 @@ use super::{
     checksum, peek_header, FormatError, BODIES, BODY_BYTES, BODY_FORCE_BYTES, FLAGS, HEADER_LEN, OVERLAY,
     PARTICLE_STATE, PDF,
 };
-use crate::physics::particle_cells::{BodyForce, MapBody, ParticleCells, ParticleLink};
+use crate::physics::particle_cells::{BodyForce, LinkCell, MapBody, ParticleCells};
 use crate::physics::particles::{Delta, Published, Work};
 use crate::physics::simulation::Simulation;
 use crate::util::bytes::{ReadError, Reader};
@@ -159,30 +159,17 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
             radius: r.f64()?,
         });
     }
-    let n = r.count(45)?;
-    pc.links.reserve(n);
+    let n = r.count(8)?;
+    pc.link_cells.reserve(n);
     for _ in 0..n {
-        let fluid = r.cell(l, true)?;
-        let q = r.u8()?;
-        let body = r.u32()?;
-        let delta = r.f64()?;
-        let second = match r.u32()? {
-            u32::MAX => None,
-            c => Some(r.cell_at(c, l, false)?),
-        };
-        if q == 0 || q as usize >= Q || body as usize >= pc.bodies.len() {
-            return Err(r
-                .bad(format_args!("link with direction {q} into body slot {body}"))
-                .into());
+        let cell = r.cell(l, true)? as u32;
+        let dirs = r.u32()?;
+        // Bits 1..=18: the D3Q19 directions other than rest.
+        if dirs == 0 || dirs & !(((1u32 << Q) - 1) & !1) != 0 {
+            return Err(r.bad(format_args!("link cell with directions {dirs:#x}")).into());
         }
-        pc.links.push(ParticleLink {
-            fluid,
-            q,
-            body,
-            delta,
-            second,
-            rel: r.v3()?,
-        });
+        let xyz = l.coords(cell as usize).map(|c| c as u32);
+        pc.link_cells.push(LinkCell { cell, dirs, xyz });
     }
     for list in [&mut pc.turned, &mut pc.covered] {
         let n = r.count(12)?;

@@ -146,14 +146,10 @@ fn write_overlay(s: &mut impl Sink, l: &Layout, pc: &ParticleCells) {
         put_v3(s, m.angular_velocity);
         put_f64(s, m.radius);
     }
-    put_count(s, pc.links.len());
-    for k in &pc.links {
-        put_u32(s, cell_of(l, k.fluid));
-        put_u8(s, k.q);
-        put_u32(s, k.body);
-        put_f64(s, k.delta);
-        put_u32(s, k.second.map_or(u32::MAX, |i| cell_of(l, i)));
-        put_v3(s, k.rel);
+    put_count(s, pc.link_cells.len());
+    for k in &pc.link_cells {
+        put_u32(s, cell_of(l, k.cell as usize));
+        put_u32(s, k.dirs);
     }
     for list in [&pc.turned, &pc.covered] {
         put_count(s, list.len());

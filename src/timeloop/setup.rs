@@ -36,10 +36,10 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
         cfg.fluid.kernel,
         coupling,
     );
-    if let Some(ps) = &scene.particles {
+    if let Some(ps) = scene.particles.as_ref().filter(|_| cfg.particles.enabled) {
         let parts = build_particles(cfg, ps, domain)?;
         if !geometry.no_fluid {
-            coupling::tasks::map_all(&parts, &sim.blocks, 0, coupling.surface);
+            coupling::tasks::map_all(&parts, &sim.blocks, 0);
         }
         sim.particles = Some(parts);
     }

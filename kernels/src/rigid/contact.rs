@@ -34,7 +34,14 @@ fn sphere_pair(bodies: &[Body], i: usize, j: usize) -> (usize, usize) {
 fn sphere_sphere(bodies: &[Body], a: usize, b: usize, margin: f64) -> Option<Contact> {
     let (ba, bb) = (&bodies[a], &bodies[b]);
     let d = ba.position - bb.position;
-    let dist = d.length();
+    // Far apart by more than rounding could hide: no contact, decided without the square root (the
+    // test below would reject the pair too: dist > r_a + r_b + max(margin, 0) by a relative 1e-9).
+    let reach = ba.radius + bb.radius + margin.max(0.0);
+    let d2 = d.length_squared();
+    if d2 > reach * reach * (1.0 + 1e-9) {
+        return None;
+    }
+    let dist = d2.sqrt();
     let depth = ba.radius + bb.radius - dist;
     if depth <= 0.0 && -depth >= margin {
         return None;
@@ -92,14 +99,9 @@ fn sort_contacts(bodies: &[Body], planes: &[Plane], c: &mut [Contact]) {
 /// All-pairs detection, O(N²).
 pub fn detect_all_pairs(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<Contact> {
     let mut out = Vec::new();
+    let probes = Probe::of(bodies, margin);
     for i in 0..bodies.len() {
-        for j in i + 1..bodies.len() {
-            if bodies[i].fixed && bodies[j].fixed {
-                continue;
-            }
-            let (a, b) = sphere_pair(bodies, i, j);
-            out.extend(sphere_sphere(bodies, a, b, margin));
-        }
+        pairs_with(bodies, &probes, i, i + 1..bodies.len(), margin, &mut out);
     }
     plane_contacts(bodies, planes, margin, &mut out);
     sort_contacts(bodies, planes, &mut out);
@@ -136,14 +138,59 @@ impl Bins {
     }
 }
 
-/// Tests body `i` against the candidates `js`: a pair is generated only from its lower-(id, index) body.
-fn pairs_of(bodies: &[Body], i: usize, js: &[usize], margin: f64, out: &mut Vec<Contact>) {
-    let (id, fixed) = (bodies[i].id, bodies[i].fixed);
-    for &j in js {
-        if (bodies[j].id, j) <= (id, i) || (fixed && bodies[j].fixed) {
+/// What the grid's pair tests read of a body, packed (a [`Body`] spans several cache lines): centre,
+/// reach (radius + max(margin, 0)) and whether it is fixed.
+#[derive(Clone, Copy)]
+struct Probe {
+    position: DVec3,
+    reach: f64,
+    fixed: bool,
+}
+
+impl Probe {
+    fn of(bodies: &[Body], margin: f64) -> Vec<Probe> {
+        bodies
+            .iter()
+            .map(|b| Probe {
+                position: b.position,
+                reach: b.radius + margin.max(0.0),
+                fixed: b.fixed,
+            })
+            .collect()
+    }
+}
+
+/// Tests body `i` against the candidates `js`: a pair is generated only from its lower-index body (every
+/// unordered pair is met from both of its bodies; the contact itself is oriented by (id, index) and the
+/// list sorted afterwards).
+fn pairs_of(bodies: &[Body], probes: &[Probe], i: usize, js: &[usize], margin: f64, out: &mut Vec<Contact>) {
+    pairs_with(bodies, probes, i, js.iter().copied().filter(|&j| j > i), margin, out);
+}
+
+/// Tests body `i` against the bodies `js` (each pair once): the pre-test of [`sphere_sphere`] on the
+/// packed probes, then the contact itself.
+fn pairs_with(
+    bodies: &[Body],
+    probes: &[Probe],
+    i: usize,
+    js: impl Iterator<Item = usize>,
+    margin: f64,
+    out: &mut Vec<Contact>,
+) {
+    let pi = probes[i];
+    let m = margin.max(0.0);
+    for j in js {
+        let pj = &probes[j];
+        if pi.fixed && pj.fixed {
             continue;
         }
-        out.extend(sphere_sphere(bodies, i, j, margin));
+        // r_a + r_b + margin, up to rounding (the tolerance below covers it).
+        let reach = pi.reach + pj.reach - m;
+        if (pi.position - pj.position).length_squared() > reach * reach * (1.0 + 1e-8) {
+            continue;
+        }
+        let (a, b) = sphere_pair(bodies, i, j);
+        out.extend(sphere_sphere(bodies, a, b, margin));
     }
 }
 
@@ -156,6 +203,7 @@ fn pairs_of(bodies: &[Body], i: usize, js: &[usize], margin: f64, out: &mut Vec<
 pub fn detect_grid(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<Contact> {
     let mut out = Vec::new();
     let n = bodies.len();
+    let probes = Probe::of(bodies, margin);
     let rmax = bodies.iter().map(|b| b.radius).fold(0.0, f64::max);
     let h = (2.0 * rmax + margin.max(0.0)).max(f64::MIN_POSITIVE);
     let cells: Vec<[i64; 3]> = bodies
@@ -194,6 +242,7 @@ pub fn detect_grid(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<Contac
                 for yy in y.saturating_sub(1)..=(y + 1).min(ey - 1) {
                     pairs_of(
                         bodies,
+                        &probes,
                         i,
                         bins.range(bucket(x0, yy, zz), bucket(x1, yy, zz)),
                         margin,
@@ -234,7 +283,7 @@ pub fn detect_grid(bodies: &[Body], planes: &[Plane], margin: f64) -> Vec<Contac
                 let neighbour = |j: &&usize| (0..3).all(|a| cells[**j][a].abs_diff(c[a]) <= 1);
                 js.extend(bins.range(k, k).iter().filter(neighbour));
             }
-            pairs_of(bodies, i, &js, margin, &mut out);
+            pairs_of(bodies, &probes, i, &js, margin, &mut out);
         }
     }
     plane_contacts(bodies, planes, margin, &mut out);

@@ -58,7 +58,7 @@ impl Default for RigidParams {
             friction: 0.3,
             iterations: 20,
             relaxation: 1.0,
-            grid_threshold: 32,
+            grid_threshold: 128,
             contact_margin: 0.0,
             restitution_threshold: 1e-3,
             position_correction: 0.2,

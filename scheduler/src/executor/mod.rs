@@ -27,19 +27,23 @@
 //!
 //! # Accounting
 //!
-//! A single counter, `pending`, counts tasks that are ready (in some queue or held as "next") or running. The
-//! driver sets it to the number of roots; a finishing task with `k` newly ready successors adds `k - 1`
-//! (nothing at all on a chain) *before* it publishes any of them; a task without newly ready successors
-//! subtracts one. `pending` reaches zero exactly when every task has finished (in an acyclic graph the
-//! earliest unfinished task would otherwise be ready). If a task panics, the run is *aborted*: tasks popped
-//! afterwards are retired without running and without releasing their successors, so `pending` still drains
-//! to zero, all queues are empty again, and the panic is resumed on the driver.
+//! A single counter, `pending`, counts tasks that are ready (in some queue or held as "next"), running, or
+//! finished but not yet *retired*. The driver sets it to the number of roots; a finishing task with `k`
+//! newly ready successors adds `k` *before* it publishes any of them and joins its worker's batch of
+//! finished tasks; a worker retires its batch (subtracts its size) when it finds no more work, or when
+//! the batch is full. `pending` reaches zero exactly when every task has finished and been retired (in an
+//! acyclic graph the earliest unfinished task would otherwise be ready). If a task panics, the run is
+//! *aborted*: tasks popped afterwards are retired without running and without releasing their successors,
+//! so `pending` still drains to zero, all queues are empty again, and the panic is resumed on the driver.
 //!
 //! # Timing
 //!
-//! Every task execution records its wall interval (ns since the run started, from one [`Instant`]) and its
-//! thread CPU time (`CLOCK_THREAD_CPUTIME_ID`, read before and after the task), plus the worker and its
-//! process, into the task's own slot of [`RunRecords::records`].
+//! Every task execution records its wall interval (ns since the run started, from one [`Instant`]), the
+//! worker and its process, and its thread CPU time, into the task's own slot of [`RunRecords::records`].
+//! The thread CPU clock (`CLOCK_THREAD_CPUTIME_ID`, a system call) is read once at the start and once at
+//! the retirement of each batch; the batch's CPU time is shared among its tasks in proportion to their
+//! wall durations (and never above them). A batch's records are written before it is retired, i.e. while
+//! the run is still alive.
 
 mod shared;
 #[cfg(test)]
@@ -361,8 +365,8 @@ impl Executor {
         // Publish. SAFETY argument for handing `&job` (and through it `&task`, `graph`, the counters and
         // the records) to the persistent workers: a worker dereferences the job pointer only while it holds a
         // task of this run, and every such task is counted in `pending` until the worker is done with it
-        // (the successor release adds to `pending` before publishing any successor; the finishing task's
-        // own decrement comes after its last use of the job). `wait_done` returns only after `pending`
+        // (the successor release adds to `pending` before publishing any successor; a finished task is
+        // retired with its worker's batch, after the batch's records are written). `wait_done` returns only after `pending`
         // reached zero and the worker that brought it there set `done`, so no worker touches any of these
         // after this function returns, and the acquire/release chain on `pending`/`done` makes all record
         // writes visible here.

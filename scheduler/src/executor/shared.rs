@@ -128,7 +128,13 @@ impl Shared {
     /// After this call the caller must not touch the job any more.
     #[inline]
     pub(super) fn retire(&self) {
-        if self.pending.fetch_sub(1, Ordering::AcqRel) == 1 {
+        self.retire_many(1);
+    }
+
+    /// Marks `n ≥ 1` items as finished (see [`Shared::retire`]).
+    #[inline]
+    pub(super) fn retire_many(&self, n: usize) {
+        if self.pending.fetch_sub(n, Ordering::AcqRel) == n {
             self.done.store(true, Ordering::SeqCst);
             let _g = lock(&self.done_lock);
             self.done_cv.notify_all();

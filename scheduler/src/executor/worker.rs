@@ -15,6 +15,8 @@ use std::thread::{self, Thread};
 /// Idle loop: rounds of search + short spin, then rounds of search + `yield_now`, then park.
 const SPIN_ROUNDS: u32 = 12;
 const YIELD_ROUNDS: u32 = 4;
+/// Most finished tasks a worker holds before it writes their records and retires them.
+const BATCH: usize = 256;
 
 /// What a starting worker reports: its index and either its stealer and thread handle or why it could not pin.
 pub(super) type Hello = (usize, Result<(Stealer<TaskId>, Thread), String>);
@@ -56,6 +58,9 @@ pub(super) fn worker_main(
         bcast_seen: 0,
         deque,
         ready: Vec::with_capacity(64),
+        batch: Vec::with_capacity(BATCH),
+        batch_cpu0: 0,
+        batch_records: std::ptr::null_mut(),
         rng: 0x9E37_79B9_7F4A_7C15 ^ (w as u64 + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9),
         shares_locally: tpp > 1 || shared.global,
         shared,
@@ -71,6 +76,12 @@ struct WorkerCtx {
     deque: Deque<TaskId>,
     /// Successors made ready by the task just finished (reused buffer).
     ready: Vec<TaskId>,
+    /// Finished tasks not yet retired, with their wall start and end (see [`WorkerCtx::execute`]).
+    batch: Vec<(TaskId, u64, u64)>,
+    /// Thread CPU time when the batch began.
+    batch_cpu0: u64,
+    /// The records of the batch's run.
+    batch_records: *mut TaskRecord,
     rng: u64,
     /// Whether anyone else can take tasks from this worker's deque.
     shares_locally: bool,
@@ -83,8 +94,12 @@ impl WorkerCtx {
             if let Some(t) = self.find_task() {
                 idle = 0;
                 self.execute(t);
+                if self.batch.len() >= BATCH {
+                    self.close_batch();
+                }
                 continue;
             }
+            self.close_batch();
             if self.try_bcast() {
                 idle = 0;
                 continue;
@@ -238,7 +253,9 @@ impl WorkerCtx {
     }
 
     /// Runs `first` and then, as long as a finishing task leaves a ready successor for this worker, that
-    /// successor.
+    /// successor. Each finished task joins the worker's *batch*: it stays counted in `pending` (which
+    /// keeps the job, its records and its graph alive) until [`WorkerCtx::close_batch`] writes the
+    /// batch's records and retires it, when the worker finds no more work or the batch is full.
     fn execute(&mut self, first: TaskId) {
         let sh = &*self.shared;
         let jp = sh.ctl.job.load(Ordering::Acquire);
@@ -252,14 +269,16 @@ impl WorkerCtx {
                 sh.retire();
                 return;
             }
+            if self.batch.is_empty() {
+                self.batch_cpu0 = thread_cpu_ns();
+                self.batch_records = job.records;
+            }
             // SAFETY: as above.
             let graph = unsafe { &*job.graph };
             let spec = graph.spec(t);
             let start = job.start.elapsed();
-            let c0 = thread_cpu_ns();
             // SAFETY: `job.ctx` is the `&F` that `job.call` was instantiated for.
             let r = panic::catch_unwind(AssertUnwindSafe(|| unsafe { (job.call)(job.ctx, t, spec, me) }));
-            let c1 = thread_cpu_ns();
             let end = job.start.elapsed();
             if let Err(payload) = r {
                 store_panic(&job.panic, payload);
@@ -267,16 +286,8 @@ impl WorkerCtx {
                 sh.retire();
                 return;
             }
-            // SAFETY: `t < n` and each task runs once, so this slot is written by this worker only.
-            unsafe {
-                job.records.add(t as usize).write(TaskRecord {
-                    worker: me.index,
-                    process: me.process,
-                    start_ns: start.as_nanos() as u64,
-                    end_ns: end.as_nanos() as u64,
-                    cpu_ns: c1.saturating_sub(c0),
-                });
-            }
+            // `t` stays counted until the batch closes.
+            self.batch.push((t, start.as_nanos() as u64, end.as_nanos() as u64));
             self.ready.clear();
             for &s in graph.successors(t) {
                 // SAFETY: successor ids are < n, the counters slice has at least n entries.
@@ -287,18 +298,14 @@ impl WorkerCtx {
             }
             let k = self.ready.len();
             if k == 0 {
-                sh.retire();
                 return;
             }
-            if k > 1 {
-                // Count the new ready tasks before publishing any of them.
-                sh.pending.fetch_add(k - 1, Ordering::Release);
-            }
+            // Count the new ready tasks before publishing any of them.
+            sh.pending.fetch_add(k, Ordering::Release);
             let mut next = None;
             let mut pushed_locally = 0usize;
             for i in 0..k {
                 let s = self.ready[i];
-                // Unpublished successors are still counted, so the graph is alive here.
                 let owner = graph.spec(s).owner;
                 if owner == me.process {
                     if next.is_none() {
@@ -312,8 +319,8 @@ impl WorkerCtx {
                     sh.wake_for(owner as usize);
                 }
             }
-            // From here on the job may be gone unless `next` is Some. Wake one idle sibling per task left in
-            // the deque (stopping at the first that finds nobody to wake).
+            // Wake one idle sibling per task left in the deque (stopping at the first that finds nobody
+            // to wake).
             if self.shares_locally {
                 for _ in 0..pushed_locally {
                     if !sh.wake_for(me.process as usize) {
@@ -325,6 +332,49 @@ impl WorkerCtx {
                 Some(s) => t = s,
                 None => return,
             }
+        }
+    }
+
+    /// Writes the records of the batch and retires its tasks (after which the job may end).
+    fn close_batch(&mut self) {
+        if self.batch.is_empty() {
+            return;
+        }
+        // SAFETY: the batch's tasks are still counted in `pending`, so the job and its records are alive;
+        // each task runs once, so its slot is written by this worker only.
+        unsafe { write_records(&self.batch, self.batch_cpu0, self.batch_records, self.me) };
+        let n = self.batch.len();
+        self.batch.clear();
+        self.shared.retire_many(n);
+    }
+}
+
+/// Writes the records of a batch of tasks run by worker `me` (task, wall start, wall end in ns since the
+/// run began), sharing the thread CPU time since `c0` among them by wall duration: the thread clock is
+/// read once per batch, not per task (a read is a system call, ~0.5 µs on a VM, more than a small
+/// task). Exact in sum and, for a batch of one task, per task; capped at each task's wall duration.
+///
+/// # Safety
+/// `records` has a slot for every task of the chain, and nobody else writes those slots.
+unsafe fn write_records(chain: &[(TaskId, u64, u64)], c0: u64, records: *mut TaskRecord, me: Worker) {
+    let cpu = thread_cpu_ns().saturating_sub(c0);
+    let wall: u64 = chain.iter().map(|&(_, a, e)| e - a).sum();
+    // CPU time per wall nanosecond over the chain (at most 1: one thread cannot run faster than the clock).
+    let rate = if wall == 0 {
+        1.0
+    } else {
+        (cpu as f64 / wall as f64).min(1.0)
+    };
+    for &(t, start_ns, end_ns) in chain {
+        // SAFETY: see the function's contract.
+        unsafe {
+            records.add(t as usize).write(TaskRecord {
+                worker: me.index,
+                process: me.process,
+                start_ns,
+                end_ns,
+                cpu_ns: ((end_ns - start_ns) as f64 * rate) as u64,
+            });
         }
     }
 }

@@ -2,6 +2,7 @@
 
 pub mod accuracy;
 pub mod balance;
+pub mod coupled;
 pub mod kernel;
 pub mod rigid;
 pub mod scheduler;
@@ -51,6 +52,22 @@ pub enum BenchKind {
         #[arg(long, default_value = "out/skip")]
         out: PathBuf,
     },
+    /// The coupled step's cost structure: every particulate scene with its bodies and fluid-only on the
+    /// same blocks, MLUPS and each part's share of the thread time, next to the paper's figure 7.
+    Coupled {
+        /// The CI size (a few steps of three scenes).
+        #[arg(long)]
+        quick: bool,
+        /// Threads of every run (one virtual process).
+        #[arg(long, default_value_t = 2)]
+        threads: usize,
+        /// Another blockflow binary: its `run` repeats the coupled runs beside this one's.
+        #[arg(long, value_name = "BINARY")]
+        baseline: Option<PathBuf>,
+        /// Output folder (coupled.md, coupled.csv and the runs).
+        #[arg(long, default_value = "out/coupled")]
+        out: PathBuf,
+    },
     /// Run time against error: channel, couette, Taylor-Green and the drag array (CLI and SBB, three solid
     /// fractions) over resolution, f64 and f32; Pareto front per scene.
     Accuracy {
@@ -84,6 +101,27 @@ pub fn execute(which: BenchKind) -> Result<()> {
                     "bench skip: the checksums with and without --no-skip differ (see the table)".into(),
                 ));
             }
+            Ok(())
+        }
+        BenchKind::Coupled {
+            quick,
+            threads,
+            baseline,
+            out,
+        } => {
+            let opts = coupled::CoupledOptions {
+                quick,
+                threads,
+                baseline,
+                out: out.clone(),
+                configs: accuracy::configs_dir(),
+            };
+            let rows = coupled::run(&opts)?;
+            print(&format!(
+                "{}results in {}\n",
+                coupled::to_markdown(&rows),
+                out.display()
+            ));
             Ok(())
         }
         BenchKind::Balance => {

@@ -73,7 +73,7 @@ fn plain_loop(sim: &mut Simulation<f64>, owners: &[u32], cores: &[Option<usize>]
                         let blk = &blocks[b];
                         for r in &blk.recv {
                             if owners[r.from] == owners[b] {
-                                fluid::copy_ghost(&blocks[r.from], blk, p, r.offset, &r.directions);
+                                fluid::copy_ghost(&blocks[r.from], blk, p, r);
                             } else {
                                 // the same packed message the graph sends across processes
                                 fluid::pack(&blocks[r.from], p, r.offset, &r.directions, &mut buf);

@@ -56,7 +56,7 @@ pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<MemoryEstimate> {
     let fluid = cfg.fluid.enabled && !scene.geometry.no_fluid;
     let pdf = if fluid { 2 * 19 * blocks * full * bytes } else { 0 };
     let flags = blocks * full;
-    let particles = match &scene.particles {
+    let particles = match scene.particles.as_ref().filter(|_| cfg.particles.enabled) {
         Some(ps) => {
             let body = std::mem::size_of::<blockflow_kernels::rigid::Body>() as u128;
             ps.bodies.len() as u128 * body * 8 + blocks * 1024

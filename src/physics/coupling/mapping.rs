@@ -1,41 +1,40 @@
-//! Mapping (Algorithm 5): the spheres near a block into its overlay, cell owners, fluid runs, links with
-//! δ_q from the ray–sphere intersection, and the cells that changed state since the previous mapping.
+//! Mapping (Algorithm 5): the spheres near a block into its overlay: cell owners, the fluid runs that
+//! leave, the cells that changed state since the previous mapping, and the fluid cells with links into
+//! particle cells (their directions; δ_q is the surface boundary pass's).
+//!
+//! The owners are written body by body over each sphere's bounding box; everything else is derived row
+//! by row from bit rows ([`CellBits`]): fluid now = static fluid and not covered, a row without covered
+//! cells keeps its static runs, and the cells with a covered neighbour in direction q are the covered
+//! bits of the neighbouring row shifted by c_q. The result is the same overlay, cell for cell and in the
+//! same order, as a cell-by-cell scan.
 
-use super::{cell_offset, min_image};
-use crate::config::SurfaceBoundary;
+use super::cell_offset;
+use super::rows::{bit_cells, interior_mask, CellBits};
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
 use crate::physics::geometry::flags;
-use crate::physics::particle_cells::{MapBody, ParticleCells, ParticleLink};
-use blockflow_kernels::coupling::crossing_fraction;
+use crate::physics::particle_cells::{LinkCell, MapBody, ParticleCells, StaticRows};
 use blockflow_kernels::d3q19::{C, Q};
 use blockflow_kernels::sweep::Segment;
 use blockflow_kernels::Real;
-use glam::DVec3;
 
 /// Maps `bodies` (sorted by id, canonical centres) into block `b`'s overlay (Algorithm 5): owners of
-/// every static fluid cell a sphere covers (the higher id wins where two overlap), fluid segments, links
-/// with δ_q and the cells that turned from solid to fluid since the previous mapping.
-pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, mode: SurfaceBoundary) {
-    map_with(d, b, pc, bodies, mode, true)
+/// every static fluid cell a sphere covers (the higher id wins where two overlap), fluid segments, the
+/// link cells and the cells that turned from solid to fluid or were covered since the previous mapping.
+pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>) {
+    map_with(d, b, pc, bodies, true)
 }
 
-/// [`map`] with its fast path for a block with no body near (before or now) switched on or off: with
-/// `fast_path = false` (`run.no_skip`) such a block is scanned cell by cell like any other, which gives
-/// the same overlay.
-pub fn map_with<T: Real>(
-    d: &DomainSpec,
-    b: &Block<T>,
-    pc: &mut ParticleCells,
-    bodies: Vec<MapBody>,
-    mode: SurfaceBoundary,
-    fast_path: bool,
-) {
+/// [`map`] with its shortcuts switched on or off: the fast path for a block with no body near (before
+/// or now), and taking the rows whose neighbourhood no body entered or left from the previous mapping.
+/// With `shortcuts = false` (`run.no_skip`) every row of every block is derived again, which gives the
+/// same overlay.
+pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, shortcuts: bool) {
     let l = b.layout;
-    let [fx, fy, fz] = l.full();
+    let full = l.full();
     // Cells of the block with its ghost layer (element indices run below the field's stride).
-    let n = l.sxy * fz;
-    if fast_path && bodies.is_empty() && !pc.owned && pc.owner.len() == n {
+    let n = l.sxy * full[2];
+    if shortcuts && bodies.is_empty() && !pc.owned && pc.owner.len() == n {
         // No body near before or now: the static cells are the state; nothing to rebuild or reconstruct.
         if pc.segments.len() != b.segments.len() || pc.fluid_cells != b.fluid_cells {
             pc.segments = b.segments.clone();
@@ -43,179 +42,342 @@ pub fn map_with<T: Real>(
         pc.fluid_cells = b.fluid_cells;
         pc.near_boundary_cells = b.near_boundary_cells;
         pc.near_particle_cells = 0;
-        pc.links.clear();
+        pc.link_cells.clear();
         pc.turned.clear();
         pc.covered.clear();
         pc.bodies.clear();
+        pc.row_index.valid = false;
         return;
     }
-    let mut old = std::mem::take(&mut pc.owner);
-    let mut fresh = std::mem::take(&mut pc.owner_spare);
-    fresh.clear();
-    fresh.resize(n, 0);
-    pc.owner = fresh;
-    let cells = d.cells();
+    if !pc.statics.fluid.fits(full) {
+        pc.statics = static_rows(b);
+        pc.row_index.valid = false;
+    }
+    let old = std::mem::take(&mut pc.owner);
+    let first = old.len() != n;
+    // The previous mapping's covered cells as bit rows (derived from the owners after a decode).
+    let mut old_occ = std::mem::take(&mut pc.occupied);
+    if !first && !old_occ.fits(full) {
+        old_occ = occupied_of(&old, &l, full);
+    }
+    let mut owner = std::mem::take(&mut pc.owner_spare);
+    owner.clear();
+    owner.resize(n, 0);
+    let mut occ = std::mem::take(&mut pc.occupied_spare);
+    if occ.fits(full) {
+        occ.clear();
+    } else {
+        occ = CellBits::new(full);
+    }
     for body in &bodies {
-        // Every periodic image whose bounding box meets the block with its ghost layer.
-        let mut ranges = [[(0i64, -1i64); 3]; 3];
-        for a in 0..3 {
-            let shifts: &[f64] = if d.periodic[a] { &[-1.0, 0.0, 1.0] } else { &[0.0] };
-            for (k, s) in shifts.iter().enumerate() {
-                let x = body.position[a] + s * cells[a] as f64;
-                let lo = ((x - body.radius - 0.5).floor() as i64 - b.origin[a] as i64 + 1).max(0);
-                let hi = ((x + body.radius - 0.5).ceil() as i64 - b.origin[a] as i64 + 1).min(l.full()[a] as i64 - 1);
-                ranges[a][k] = (lo, hi);
-            }
+        fill_sphere(d, b, &pc.statics, body, &mut owner, &mut occ);
+    }
+    pc.owner = owner;
+    pc.owned = occ.any();
+    rows(b, pc, &old, if first { None } else { Some(&old_occ) }, &occ, shortcuts);
+    pc.occupied = occ;
+    pc.bodies = bodies;
+    let mut spare = old;
+    spare.clear();
+    pc.owner_spare = spare;
+    pc.occupied_spare = old_occ;
+}
+
+/// Writes `body` into the owners of every static fluid cell (`statics.fluid`) its sphere covers (any
+/// periodic image whose bounding box meets the block with its ghost layer).
+fn fill_sphere<T: Real>(
+    d: &DomainSpec,
+    b: &Block<T>,
+    statics: &StaticRows,
+    body: &MapBody,
+    owner: &mut [u64],
+    occ: &mut CellBits,
+) {
+    let l = b.layout;
+    let cells = d.cells();
+    let mut ranges = [[(0i64, -1i64); 3]; 3];
+    for a in 0..3 {
+        let shifts: &[f64] = if d.periodic[a] { &[-1.0, 0.0, 1.0] } else { &[0.0] };
+        for (k, s) in shifts.iter().enumerate() {
+            let x = body.position[a] + s * cells[a] as f64;
+            let lo = ((x - body.radius - 0.5).floor() as i64 - b.origin[a] as i64 + 1).max(0);
+            let hi = ((x + body.radius - 0.5).ceil() as i64 - b.origin[a] as i64 + 1).min(l.full()[a] as i64 - 1);
+            ranges[a][k] = (lo, hi);
         }
-        let r2 = body.radius * body.radius;
-        for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
-            for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
-                for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
-                    // The offset is separable per axis: compute each axis once (same bits as cell_offset).
-                    let axis = |a: usize, k: i64| {
-                        let mut xyz = [1usize; 3];
-                        xyz[a] = k as usize;
-                        cell_offset(d, b.origin, xyz, body.position)[a]
-                    };
-                    let ox: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).collect();
-                    let oy: Vec<f64> = (ry.0..=ry.1).map(|k| axis(1, k)).collect();
-                    for z in rz.0..=rz.1 {
-                        let oz = axis(2, z);
-                        for (jy, y) in (ry.0..=ry.1).enumerate() {
-                            let yz = oy[jy] * oy[jy] + oz * oz;
-                            if yz > r2 {
-                                continue;
-                            }
-                            let row = l.idx(0, y as usize, z as usize);
-                            for (jx, x) in (rx.0..=rx.1).enumerate() {
-                                let i = row + x as usize;
-                                if b.flags[i] & flags::FLUID != 0 && ox[jx] * ox[jx] + yz <= r2 {
-                                    pc.owner[i] = body.id + 1;
-                                }
-                            }
+    }
+    let r2 = body.radius * body.radius;
+    // The offset is separable per axis: compute each axis once (same bits as cell_offset).
+    let axis = |a: usize, k: i64| {
+        let mut xyz = [1usize; 3];
+        xyz[a] = k as usize;
+        cell_offset(d, b.origin, xyz, body.position)[a]
+    };
+    let id1 = body.id + 1;
+    for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
+        for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
+            for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
+                let ox2: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).map(|o| o * o).collect();
+                let oy: Vec<f64> = (ry.0..=ry.1).map(|k| axis(1, k)).collect();
+                for z in rz.0..=rz.1 {
+                    let oz = axis(2, z);
+                    for (jy, y) in (ry.0..=ry.1).enumerate() {
+                        let yz = oy[jy] * oy[jy] + oz * oz;
+                        if yz > r2 {
+                            continue;
                         }
+                        let row = l.idx(0, y as usize, z as usize);
+                        let bits = occ.row_mut(y as usize, z as usize);
+                        // Branch-free: whether a cell is inside is as good as random to a predictor. The
+                        // row's bits gather in `acc` and go to memory once per word.
+                        let fluid = statics.fluid.row(y as usize, z as usize);
+                        let (mut acc, mut w) = (0u64, rx.0 as usize / 64);
+                        for (jx, x) in (rx.0 as usize..=rx.1 as usize).enumerate() {
+                            let i = row + x;
+                            let inside = (fluid[x / 64] >> (x % 64)) & 1 != 0 && ox2[jx] + yz <= r2;
+                            owner[i] = if inside { id1 } else { owner[i] };
+                            if x / 64 != w {
+                                bits[w] |= acc;
+                                (acc, w) = (0, x / 64);
+                            }
+                            acc |= (inside as u64) << (x % 64);
+                        }
+                        bits[w] |= acc;
                     }
                 }
             }
         }
     }
-    // Segments and turned cells, scanning the interior once.
+}
+
+/// The covered cells of an owner array as bit rows.
+fn occupied_of(owner: &[u64], l: &blockflow_kernels::Layout, full: [usize; 3]) -> CellBits {
+    let mut occ = CellBits::new(full);
+    for z in 0..full[2] {
+        for y in 0..full[1] {
+            for x in 0..full[0] {
+                if owner[l.idx(x, y, z)] != 0 {
+                    occ.set(x, y, z);
+                }
+            }
+        }
+    }
+    occ
+}
+
+/// The static rows of a block: fluid and near-wall cells, and the start of every interior row's static
+/// runs in `b.segments`.
+fn static_rows<T: Real>(b: &Block<T>) -> StaticRows {
+    let l = b.layout;
+    let full = l.full();
+    let mut fluid = CellBits::new(full);
+    let mut near_wall = CellBits::new(full);
+    for z in 0..full[2] {
+        for y in 0..full[1] {
+            for x in 0..full[0] {
+                let f = b.flags[l.idx(x, y, z)];
+                if f & flags::FLUID != 0 {
+                    fluid.set(x, y, z);
+                    if f & flags::NEAR_BOUNDARY != 0 {
+                        near_wall.set(x, y, z);
+                    }
+                }
+            }
+        }
+    }
+    let rows = (full[1] - 2) * (full[2] - 2);
+    let mut row_segments = Vec::with_capacity(rows + 1);
+    let mut k = 0;
+    for z in 1..full[2] - 1 {
+        for y in 1..full[1] - 1 {
+            let first = l.idx(1, y, z);
+            while k < b.segments.len() && b.segments[k].start < first {
+                k += 1;
+            }
+            row_segments.push(k as u32);
+        }
+    }
+    row_segments.push(b.segments.len() as u32);
+    StaticRows {
+        fluid,
+        near_wall,
+        row_segments,
+    }
+}
+
+/// Everything the mapping derives row by row from the new covered cells `occ` (and the previous ones,
+/// `old_occ`, with their owners `old`; `None` on a block's first mapping): fluid runs and counts, the
+/// covered and turned cells, the link cells and the near-boundary counts (NB of Table 1).
+///
+/// A row's results depend only on the covered cells of the row and of its eight neighbour rows (in y
+/// and z; x shifts stay inside a row). With `reuse`, a row whose neighbourhood is covered as in the
+/// previous mapping takes its entries from the previous lists, found through the row index.
+fn rows<T: Real>(
+    b: &Block<T>,
+    pc: &mut ParticleCells,
+    old: &[u64],
+    old_occ: Option<&CellBits>,
+    occ: &CellBits,
+    reuse: bool,
+) {
+    let l = b.layout;
+    let [fx, fy, fz] = l.full();
+    let n_rows = (fy - 2) * (fz - 2);
+    let reusable = reuse && pc.row_index.valid && pc.row_index.counts.len() == n_rows;
+    // Rows (ghost layer included) whose covered cells changed since the previous mapping.
+    let changed: Vec<bool> = match old_occ {
+        Some(prev) if reusable => (0..fz)
+            .flat_map(|z| (0..fy).map(move |y| (y, z)))
+            .map(|(y, z)| occ.row(y, z) != prev.row(y, z))
+            .collect(),
+        _ => Vec::new(),
+    };
+    let reusable = reusable && old_occ.is_some();
+    let prev_segments = std::mem::replace(&mut pc.segments, std::mem::take(&mut pc.spare.segments));
+    let prev_links = std::mem::replace(&mut pc.link_cells, std::mem::take(&mut pc.spare.link_cells));
+    let prev_index = std::mem::replace(&mut pc.row_index, std::mem::take(&mut pc.spare.index));
+    let index = &mut pc.row_index;
+    index.segments.clear();
+    index.link_cells.clear();
+    index.counts.clear();
+    let st = &pc.statics;
     pc.segments.clear();
+    pc.link_cells.clear();
     pc.turned.clear();
     pc.covered.clear();
-    pc.links.clear();
-    pc.fluid_cells = 0;
-    pc.near_particle_cells = 0;
-    pc.near_boundary_cells = 0;
+    let words = occ.words;
+    let mut masks = vec![[0u64; Q]; words];
+    // Rows with a covered cell: only rows next to one can have links.
+    let row_cov: Vec<bool> = (0..fz)
+        .flat_map(|z| (0..fy).map(move |y| (y, z)))
+        .map(|(y, z)| occ.row(y, z).iter().any(|&w| w != 0))
+        .collect();
+    let around =
+        |flags: &[bool], y: usize, z: usize| (z - 1..=z + 1).any(|zz| (y - 1..=y + 1).any(|yy| flags[yy + fy * zz]));
+    let mut row = 0;
     for z in 1..fz - 1 {
         for y in 1..fy - 1 {
-            let mut run: Option<Segment> = None;
-            for x in 1..fx - 1 {
-                let i = l.idx(x, y, z);
-                let fluid = b.flags[i] & flags::FLUID != 0 && pc.owner[i] == 0;
-                if !fluid {
-                    if let Some(s) = run.take() {
-                        pc.segments.push(s);
+            index.segments.push(pc.segments.len() as u32);
+            index.link_cells.push(pc.link_cells.len() as u32);
+            if reusable && !around(&changed, y, z) {
+                let (s0, s1) = (prev_index.segments[row] as usize, prev_index.segments[row + 1] as usize);
+                let (k0, k1) = (
+                    prev_index.link_cells[row] as usize,
+                    prev_index.link_cells[row + 1] as usize,
+                );
+                pc.segments.extend_from_slice(&prev_segments[s0..s1]);
+                pc.link_cells.extend_from_slice(&prev_links[k0..k1]);
+                index.counts.push(prev_index.counts[row]);
+                row += 1;
+                continue;
+            }
+            // Fluid cells, near-boundary cells and cells with a particle link of this row.
+            let mut counts = [0u32; 3];
+            let base = l.idx(0, y, z);
+            let covered_row = (0..words).any(|w| occ.row(y, z)[w] & interior_mask(fx, w) != 0);
+            let check_links = around(&row_cov, y, z);
+            let mut linked = false;
+            for (w, mask) in masks.iter_mut().enumerate() {
+                let im = interior_mask(fx, w);
+                let fl = st.fluid.row(y, z)[w] & im;
+                let cov = occ.row(y, z)[w] & im;
+                let now = fl & !cov;
+                counts[0] += now.count_ones();
+                counts[1] += (now & st.near_wall.row(y, z)[w]).count_ones();
+                if let Some(prev) = old_occ {
+                    let was = prev.row(y, z)[w] & im;
+                    for x in bit_cells(cov & !was, w) {
+                        pc.covered.push((base + x, pc.owner[base + x] - 1));
                     }
-                    if pc.owner[i] != 0 && old.len() == n && old[i] == 0 {
-                        pc.covered.push((i, pc.owner[i] - 1));
+                    for x in bit_cells(was & now, w) {
+                        pc.turned.push((base + x, old[base + x] - 1));
                     }
+                }
+                // Links: bit x of mask q is set when cell x + c_q is covered.
+                if !check_links {
                     continue;
                 }
-                pc.fluid_cells += 1;
-                if b.flags[i] & flags::NEAR_BOUNDARY != 0 {
-                    pc.near_boundary_cells += 1;
+                let mut any = 0;
+                for (q, c) in C.iter().enumerate().skip(1) {
+                    let ny = (y as i64 + c[1] as i64) as usize;
+                    let nz = (z as i64 + c[2] as i64) as usize;
+                    let m = occ.shifted(ny, nz, w, c[0]) & now;
+                    mask[q] = m;
+                    any |= m;
                 }
-                match run.as_mut() {
-                    Some(s) => s.len += 1,
-                    None => run = Some(Segment { start: i, len: 1 }),
-                }
-                if old.len() == n && old[i] != 0 {
-                    pc.turned.push((i, old[i] - 1));
-                }
+                mask[0] = any;
+                linked |= any != 0;
             }
-            if let Some(s) = run.take() {
-                pc.segments.push(s);
+            if covered_row {
+                let now = |w: usize| st.fluid.row(y, z)[w] & interior_mask(fx, w) & !occ.row(y, z)[w];
+                push_runs(&mut pc.segments, (0..words).map(now), base);
+            } else {
+                let (a, e) = (st.row_segments[row] as usize, st.row_segments[row + 1] as usize);
+                pc.segments.extend_from_slice(&b.segments[a..e]);
             }
-        }
-    }
-    // Links: mark the cells next to a particle cell (few), then visit the marked fluid cells in cell order.
-    let is_fluid = |i: usize| b.flags[i] & flags::FLUID != 0 && pc.owner[i] == 0;
-    let mut mark = std::mem::take(&mut pc.mark);
-    mark.clear();
-    mark.resize(n, false);
-    let mut any = false;
-    for (t, &o) in pc.owner.iter().enumerate() {
-        if o != 0 {
-            any = true;
-            for c in C.iter().skip(1) {
-                let i = t as isize - l.offset(*c);
-                if i >= 0 && (i as usize) < n {
-                    mark[i as usize] = true;
-                }
-            }
-        }
-    }
-    let mut found: Vec<(usize, usize, usize, [usize; 3])> = Vec::new();
-    let offs: [isize; Q] = std::array::from_fn(|q| l.offset(C[q]));
-    if any {
-        for z in 1..fz - 1 {
-            for y in 1..fy - 1 {
-                let row = l.idx(0, y, z);
-                for x in 1..fx - 1 {
-                    let i = row + x;
-                    if !mark[i] || !is_fluid(i) {
-                        continue;
-                    }
-                    for (q, off) in offs.iter().enumerate().skip(1) {
-                        let t = (i as isize + off) as usize;
-                        if pc.owner[t] != 0 {
-                            found.push((i, q, t, [x, y, z]));
+            if linked {
+                for (w, m) in masks.iter().enumerate() {
+                    for x in bit_cells(m[0], w) {
+                        let bit = 1u64 << (x % 64);
+                        // The cell's directions: bit x % 64 of every direction's mask.
+                        let dirs = (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
+                        pc.link_cells.push(LinkCell {
+                            cell: (base + x) as u32,
+                            dirs,
+                            xyz: [x as u32, y as u32, z as u32],
+                        });
+                        counts[2] += 1;
+                        if st.near_wall.row(y, z)[w] & bit == 0 {
+                            counts[1] += 1;
                         }
                     }
                 }
             }
+            index.counts.push(counts);
+            row += 1;
         }
     }
-    pc.mark = mark;
-    pc.owned = any;
-    let slot = |id: u64| bodies.binary_search_by_key(&id, |m| m.id).ok();
-    let cells_f = [cells[0] as f64, cells[1] as f64, cells[2] as f64];
-    let mut last_cell = usize::MAX;
-    for (i, q, t, xyz) in found {
-        let Some(k) = slot(pc.owner[t] - 1) else { continue };
-        let body = &bodies[k];
-        // Offset of the fluid cell centre from the body centre, nearest image. Only this block uses a
-        // link, so plain local arithmetic suffices (no division, unlike `cell_offset`).
-        let mut rel = DVec3::ZERO;
-        for a in 0..3 {
-            let x = (b.origin[a] + xyz[a]) as f64 - 0.5;
-            rel[a] = min_image(x - body.position[a], cells_f[a], d.periodic[a]);
-        }
-        let second = (i as isize - l.offset(C[q])) as usize;
-        let (delta, second) = if mode == SurfaceBoundary::Cli && is_fluid(second) {
-            // x_f is outside and x_f + c_q inside the sphere (the mapping says so): the ray enters it.
-            (crossing_fraction(rel, q, body.radius), Some(second))
-        } else {
-            (0.5, None)
-        };
-        pc.links.push(ParticleLink {
-            fluid: i,
-            q: q as u8,
-            body: k as u32,
-            delta,
-            second,
-            rel,
-        });
-        if i != last_cell {
-            pc.near_particle_cells += 1;
-            if b.flags[i] & flags::NEAR_BOUNDARY == 0 {
-                pc.near_boundary_cells += 1;
+    index.segments.push(pc.segments.len() as u32);
+    index.link_cells.push(pc.link_cells.len() as u32);
+    index.valid = true;
+    let sum = |k: usize| index.counts.iter().map(|c| c[k] as usize).sum::<usize>();
+    (pc.fluid_cells, pc.near_boundary_cells, pc.near_particle_cells) = (sum(0), sum(1), sum(2));
+    pc.spare.segments = prev_segments;
+    pc.spare.link_cells = prev_links;
+    pc.spare.index = prev_index;
+}
+
+/// Appends the runs of set bits of a row (its words in order; element index of the row's cell 0:
+/// `base`), a run that crosses a word boundary as one.
+fn push_runs(segs: &mut Vec<Segment>, words: impl Iterator<Item = u64>, base: usize) {
+    let mut open: Option<Segment> = None;
+    for (w, word) in words.enumerate() {
+        let mut x = 0;
+        while x < 64 {
+            let rest = word >> x;
+            if rest & 1 == 0 {
+                if let Some(s) = open.take() {
+                    segs.push(s);
+                }
+                if rest == 0 {
+                    break;
+                }
+                x += rest.trailing_zeros() as usize;
+                continue;
             }
-            last_cell = i;
+            let len = ((!rest).trailing_zeros() as usize).min(64 - x);
+            match open.as_mut() {
+                Some(s) => s.len += len,
+                None => {
+                    open = Some(Segment {
+                        start: base + w * 64 + x,
+                        len,
+                    })
+                }
+            }
+            x += len;
         }
     }
-    pc.bodies = bodies;
-    old.clear();
-    pc.owner_spare = old;
+    if let Some(s) = open {
+        segs.push(s);
+    }
 }

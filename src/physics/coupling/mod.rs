@@ -19,6 +19,7 @@
 
 pub mod mapping;
 pub mod reconstruct;
+pub mod rows;
 pub mod surface;
 pub mod tasks;
 

@@ -13,7 +13,6 @@
 //! rigid-body sub-steps that follow (Algorithm 1).
 
 use super::map_with;
-use crate::config::SurfaceBoundary;
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
 use crate::physics::particle_cells::{BodyForce, MapBody, ParticleCells};
@@ -71,19 +70,19 @@ pub fn bodies_near<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64) -> Ve
 ///
 /// # Safety
 /// No other task may access b's overlay concurrently (see the module table).
-pub unsafe fn map_task<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, mode: SurfaceBoundary, no_skip: bool) {
+pub unsafe fn map_task<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, no_skip: bool) {
     let bodies = bodies_near(parts, blk, steps);
     let pc: &mut ParticleCells = blk.particle_cells_mut();
-    map_with(parts.domain(), blk, pc, bodies, mode, !no_skip);
+    map_with(parts.domain(), blk, pc, bodies, !no_skip);
 }
 
 /// Task `map(b, t)` of a block without fluid (only with `run.no_skip`): maps the bodies near it into a
-/// scratch overlay, cell by cell, and drops it. The block keeps having no overlay (a block without
+/// scratch overlay and drops it. The block keeps having no overlay (a block without
 /// fluid never has one; block serialisation relies on that), so nothing changes.
-pub fn map_scratch<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64, mode: SurfaceBoundary) {
+pub fn map_scratch<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64) {
     let bodies = bodies_near(parts, blk, steps);
     let mut pc = ParticleCells::default();
-    map_with(parts.domain(), blk, &mut pc, bodies, mode, false);
+    map_with(parts.domain(), blk, &mut pc, bodies, false);
     std::hint::black_box(&pc);
 }
 
@@ -123,10 +122,10 @@ pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: us
 }
 
 /// Maps every block with fluid (set-up, and the only mapping when all bodies are fixed).
-pub fn map_all<T: Real>(parts: &Particles, blocks: &[Block<T>], steps: u64, mode: SurfaceBoundary) {
+pub fn map_all<T: Real>(parts: &Particles, blocks: &[Block<T>], steps: u64) {
     for blk in blocks.iter().filter(|b| b.fluid_cells > 0) {
         // SAFETY: set-up, nothing runs concurrently.
-        unsafe { map_task(parts, blk, steps, mode, false) };
+        unsafe { map_task(parts, blk, steps, false) };
     }
 }
 

@@ -43,6 +43,9 @@ pub struct Neighbour {
     pub block: usize,
     /// Added to the neighbour's body positions.
     pub shift: DVec3,
+    /// Whether this is the first entry of `block` in the list (the one the block's locals are gathered
+    /// from, unshifted).
+    pub first: bool,
 }
 
 /// A velocity change a block's contacts gave one of its shadow bodies.
@@ -517,6 +520,7 @@ fn block_bodies(d: &DomainSpec, id: usize, planes: &[Plane], halo: f64) -> Block
     let mut neighbours = vec![Neighbour {
         block: id,
         shift: DVec3::ZERO,
+        first: true,
     }];
     for off in NEIGHBOURS {
         let Some(n) = d.neighbour(id, off) else {
@@ -531,9 +535,9 @@ fn block_bodies(d: &DomainSpec, id: usize, planes: &[Plane], halo: f64) -> Block
                 shift[a] = cells[a] as f64;
             }
         }
-        let nb = Neighbour { block: n, shift };
-        if !neighbours.contains(&nb) {
-            neighbours.push(nb);
+        if !neighbours.iter().any(|m| m.block == n && m.shift == shift) {
+            let first = !neighbours.iter().any(|m| m.block == n);
+            neighbours.push(Neighbour { block: n, shift, first });
         }
     }
     let mut near: Vec<usize> = neighbours.iter().map(|n| n.block).collect();

@@ -33,32 +33,35 @@ impl Particles {
         let w = &mut *blk.work.get();
         w.bodies.clear();
         w.deltas.clear();
-        for &n in &blk.near {
-            let pb = self.blocks[n].published(prev);
+        // One pass over the neighbours' lists: a body whose home is b is a local (taken once, unshifted,
+        // from its block's first entry), every copy within the halo but the unshifted one of a local is a
+        // shadow; locals sorted by id, shadows by (id, neighbour), so the order does not depend on the pass.
+        let mut shadows = Vec::new();
+        for (k, nb) in blk.neighbours.iter().enumerate() {
+            let pb = self.blocks[nb.block].published(prev);
+            let unshifted = nb.shift == glam::DVec3::ZERO;
             for (body, &h) in pb.bodies.iter().zip(&pb.homes) {
-                if h as usize == b {
+                let local = h as usize == b;
+                if local && nb.first {
                     w.bodies.push(*body);
+                }
+                if local && unshifted {
+                    continue;
+                }
+                let position = body.position + nb.shift;
+                if dist_to_box(position, blk.lo, blk.hi) <= body.radius + self.halo {
+                    shadows.push((body.id, k, position, body));
                 }
             }
         }
         w.bodies.sort_unstable_by_key(|x| x.id);
         w.locals = w.bodies.len();
-        let mut shadows = Vec::new();
-        for (k, nb) in blk.neighbours.iter().enumerate() {
-            let pb = self.blocks[nb.block].published(prev);
-            for (body, &h) in pb.bodies.iter().zip(&pb.homes) {
-                if nb.shift == glam::DVec3::ZERO && h as usize == b {
-                    continue;
-                }
-                let mut c = *body;
-                c.position += nb.shift;
-                if dist_to_box(c.position, blk.lo, blk.hi) <= c.radius + self.halo {
-                    shadows.push((c.id, k, c));
-                }
-            }
-        }
         shadows.sort_unstable_by_key(|s| (s.0, s.1));
-        w.bodies.extend(shadows.into_iter().map(|s| s.2));
+        w.bodies.extend(shadows.into_iter().map(|(_, _, position, body)| {
+            let mut c = *body;
+            c.position = position;
+            c
+        }));
         let dt = self.dt_sub();
         apply_forces(&mut w.bodies, &self.params, dt);
         w.contacts = 0;

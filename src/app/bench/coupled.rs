@@ -1,0 +1,413 @@
+//! `blockflow bench coupled [--quick] [--threads T] [--baseline BINARY] [--out DIR]`: the cost structure
+//! of the coupled step. Every particulate scene runs twice on the same blocks and geometry, with its
+//! bodies and fluid-only (`particles.enabled = false`), and a periodic fluid box on two big blocks gives
+//! the kernel's speed in the same run. Per run: MLUPS (fluid cells × steps / wall seconds), the LBM part's
+//! MLUPS per core (fluid cells × steps / CPU seconds of the sweeps), and every part's share of the thread
+//! time (P × T × wall seconds): LBM, boundary, exchange, map, reconstruct, rigid body, forces, and what no
+//! task used (scheduling and idle), next to the shares of the paper's figure 7. With `--baseline`, the
+//! coupled runs are repeated with another `blockflow` binary (its `run` command), side by side, in the
+//! same order on the same machine.
+
+use crate::app::run::{self, RunOptions};
+use crate::config;
+use crate::error::{Error, Result};
+use std::collections::BTreeMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+/// The shares of the paper's figure 7 for comparison (LBM ≈ 45 %, boundary ≈ 35 %, coupling and rigid
+/// body below 5 % each).
+pub const PAPER_SHARES: &str = "LBM ≈ 45 %, boundary ≈ 35 %, map + reconstruct < 5 %, rigid body < 5 %";
+
+/// The parts a row reports, in column order, with the task kinds each sums.
+const PARTS: [(&str, &[&str]); 7] = [
+    ("lbm", &["sweep"]),
+    ("boundary", &["boundary"]),
+    ("exchange", &["send", "comm"]),
+    ("map", &["map", "static_map"]),
+    ("reconstruct", &["reconstruct"]),
+    ("rigid_body", &["rb", "rb_sync"]),
+    ("forces", &["forces"]),
+];
+
+/// One scene of the bench: a scene file with overrides and a step count.
+#[derive(Clone, Debug)]
+pub struct Case {
+    /// Name in the table.
+    pub name: &'static str,
+    /// Scene file in `configs/`.
+    pub file: &'static str,
+    /// Overrides.
+    pub sets: Vec<String>,
+    /// Steps.
+    pub steps: u64,
+    /// Whether the scene has bodies (else it is the kernel's reference on big blocks).
+    pub particulate: bool,
+}
+
+/// The scenes: hopper-small, the hopper, the calibration scene at b_s = 16 and 32, the settling sphere
+/// (E4, D = 9) and the kernel on two big blocks; `quick` runs a few steps of three of them.
+pub fn cases(quick: bool) -> Vec<Case> {
+    let case = |name, file, sets: &[&str], steps, particulate| Case {
+        name,
+        file,
+        sets: sets.iter().map(|s| s.to_string()).collect(),
+        steps,
+        particulate,
+    };
+    let kernel = case(
+        "kernel, 2 blocks of 80x160x160",
+        "taylor_green.toml",
+        &["scene.resolution=160", "domain.blocks=[2,1,1]"],
+        if quick { 3 } else { 20 },
+        false,
+    );
+    if quick {
+        return vec![
+            case("hopper-small", "hopper-small.toml", &[], 40, true),
+            case(
+                "calibration b_s=16",
+                "calibration.toml",
+                &["domain.block_size=[16,16,16]"],
+                20,
+                true,
+            ),
+            case(
+                "settling E4 D=6",
+                "settling_sphere.toml",
+                &["scene.case=\"E4\"", "scene.resolution=6"],
+                60,
+                true,
+            ),
+            kernel,
+        ];
+    }
+    vec![
+        case("hopper-small", "hopper-small.toml", &[], 600, true),
+        case("hopper", "hopper.toml", &[], 150, true),
+        case(
+            "calibration b_s=16",
+            "calibration.toml",
+            &["domain.block_size=[16,16,16]"],
+            300,
+            true,
+        ),
+        case(
+            "calibration b_s=32",
+            "calibration.toml",
+            &["domain.block_size=[32,32,32]", "scene.diameter=10"],
+            60,
+            true,
+        ),
+        case(
+            "settling E4 D=9",
+            "settling_sphere.toml",
+            &["scene.case=\"E4\"", "scene.resolution=9"],
+            1500,
+            true,
+        ),
+        kernel,
+    ]
+}
+
+/// What one run measured.
+#[derive(Clone, Debug, Default)]
+pub struct Row {
+    /// Scene name.
+    pub scene: String,
+    /// `coupled`, `fluid-only`, `kernel` or `baseline` (the coupled run of `--baseline`).
+    pub variant: String,
+    /// Fluid cells.
+    pub fluid_cells: u64,
+    /// Steps run.
+    pub steps: u64,
+    /// Threads (P × T).
+    pub threads: u64,
+    /// Wall seconds of the time loop.
+    pub wall_seconds: f64,
+    /// Fluid cell updates per second / 1e6.
+    pub mlups: f64,
+    /// Fluid cell updates per CPU second of the LBM sweeps / 1e6 (the kernel's speed per core).
+    pub lbm_mlups_per_core: f64,
+    /// Share of the thread time per part of [`PARTS`], then the share no task used (last), in percent.
+    pub shares: Vec<f64>,
+    /// Fluid and particle checksums.
+    pub checksums: (String, String),
+}
+
+impl Row {
+    /// The row of a run's `summary.json` (as a JSON value, so that another binary's summary reads too).
+    fn of(scene: &str, variant: &str, s: &serde_json::Value) -> Result<Row> {
+        let num = |k: &str| s[k].as_f64().unwrap_or(f64::NAN);
+        let by_kind = s["tasks_cpu_seconds_by_kind"].as_object().cloned().unwrap_or_default();
+        let cpu = |kinds: &[&str]| kinds.iter().filter_map(|k| by_kind.get(*k)?.as_f64()).sum::<f64>();
+        let threads = (num("processes") * num("threads_per_process")) as u64;
+        let wall = num("wall_seconds");
+        let total = threads as f64 * wall;
+        if total.is_nan() || total <= 0.0 {
+            return Err(Error::Config(format!(
+                "bench coupled: {scene} ({variant}) measured no time"
+            )));
+        }
+        let mut shares: Vec<f64> = PARTS.iter().map(|(_, k)| 100.0 * cpu(k) / total).collect();
+        shares.push(100.0 - shares.iter().sum::<f64>());
+        let cells = num("fluid_cells");
+        let steps = s["steps"].as_u64().unwrap_or(0) - s["restart_step"].as_u64().unwrap_or(0);
+        let lbm = cpu(PARTS[0].1);
+        Ok(Row {
+            scene: scene.to_string(),
+            variant: variant.to_string(),
+            fluid_cells: cells as u64,
+            steps,
+            threads,
+            wall_seconds: wall,
+            mlups: num("mlups"),
+            lbm_mlups_per_core: if lbm > 0.0 {
+                cells * steps as f64 / lbm / 1e6
+            } else {
+                0.0
+            },
+            shares,
+            checksums: (
+                s["checksum"]["fluid"].as_str().unwrap_or("").to_string(),
+                s["checksum"]["particles"].as_str().unwrap_or("-").to_string(),
+            ),
+        })
+    }
+
+    /// Share (percent of the thread time) of the part named `name` (or `idle`).
+    pub fn share(&self, name: &str) -> f64 {
+        match PARTS.iter().position(|(n, _)| *n == name) {
+            Some(i) => self.shares[i],
+            None if name == "idle" => self.shares[PARTS.len()],
+            None => f64::NAN,
+        }
+    }
+}
+
+/// Options of `blockflow bench coupled`.
+#[derive(Clone, Debug)]
+pub struct CoupledOptions {
+    /// The CI size.
+    pub quick: bool,
+    /// Threads of every run (one virtual process).
+    pub threads: usize,
+    /// Another `blockflow` binary whose `run` repeats the coupled runs.
+    pub baseline: Option<PathBuf>,
+    /// Output folder.
+    pub out: PathBuf,
+    /// Folder of the scene files.
+    pub configs: PathBuf,
+}
+
+fn sets_of(c: &Case, threads: usize, fluid_only: bool) -> Vec<String> {
+    let mut sets = c.sets.clone();
+    sets.push(format!("run.steps={}", c.steps));
+    sets.push(format!("processes.threads_per_process={threads}"));
+    if fluid_only {
+        sets.push("particles.enabled=false".into());
+    }
+    sets
+}
+
+fn own_run(o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result<serde_json::Value> {
+    let cfg = config::load(&o.configs.join(c.file), &sets_of(c, o.threads, fluid_only))?;
+    let opts = RunOptions {
+        out: Some(dir.to_path_buf()),
+        ..Default::default()
+    };
+    let s = run::run(&cfg, &opts)?;
+    serde_json::to_value(&s).map_err(|e| Error::Io(format!("summary of {}: {e}", c.name)))
+}
+
+fn baseline_run(bin: &Path, o: &CoupledOptions, c: &Case, dir: &Path) -> Result<serde_json::Value> {
+    let mut cmd = std::process::Command::new(bin);
+    cmd.arg("run").arg(o.configs.join(c.file)).arg("--out").arg(dir);
+    for s in sets_of(c, o.threads, false) {
+        cmd.arg("--set").arg(s);
+    }
+    let out = cmd
+        .output()
+        .map_err(|e| Error::Config(format!("--baseline {}: cannot run it: {e}", bin.display())))?;
+    if !out.status.success() {
+        return Err(Error::Config(format!(
+            "--baseline {}: run of {} failed: {}",
+            bin.display(),
+            c.name,
+            String::from_utf8_lossy(&out.stderr).trim()
+        )));
+    }
+    let p = dir.join("summary.json");
+    let text = std::fs::read_to_string(&p).map_err(|e| Error::Io(format!("{}: {e}", p.display())))?;
+    serde_json::from_str(&text).map_err(|e| Error::Io(format!("{}: {e}", p.display())))
+}
+
+/// Runs the bench; writes `coupled.md` and `coupled.csv` into `o.out`.
+pub fn run(o: &CoupledOptions) -> Result<Vec<Row>> {
+    if o.threads == 0 {
+        return Err(Error::Config("bench coupled: --threads must be at least 1".into()));
+    }
+    let mut rows = Vec::new();
+    for c in cases(o.quick) {
+        let dir = o.out.join(c.name.replace([' ', ',', '='], "_"));
+        if c.particulate {
+            if let Some(bin) = &o.baseline {
+                let s = baseline_run(bin, o, &c, &dir.join("baseline"))?;
+                rows.push(Row::of(c.name, "baseline", &s)?);
+            }
+            let s = own_run(o, &c, false, &dir.join("coupled"))?;
+            rows.push(Row::of(c.name, "coupled", &s)?);
+            let s = own_run(o, &c, true, &dir.join("fluid-only"))?;
+            rows.push(Row::of(c.name, "fluid-only", &s)?);
+        } else {
+            let s = own_run(o, &c, false, &dir)?;
+            rows.push(Row::of(c.name, "kernel", &s)?);
+        }
+    }
+    std::fs::create_dir_all(&o.out).map_err(|e| Error::Io(format!("{}: {e}", o.out.display())))?;
+    for (name, text) in [("coupled.md", to_markdown(&rows)), ("coupled.csv", to_csv(&rows))] {
+        let p = o.out.join(name);
+        std::fs::write(&p, text).map_err(|e| Error::Io(format!("{}: {e}", p.display())))?;
+    }
+    Ok(rows)
+}
+
+/// The ratios of a scene: coupled over fluid-only MLUPS, coupled over the kernel on big blocks, and the
+/// baseline's coupled MLUPS over the coupled ones (the speed-up), where the rows exist.
+pub fn ratios(rows: &[Row]) -> BTreeMap<String, (f64, f64, f64)> {
+    let kernel = rows
+        .iter()
+        .find(|r| r.variant == "kernel")
+        .map_or(f64::NAN, |r| r.mlups);
+    let mut out = BTreeMap::new();
+    for r in rows.iter().filter(|r| r.variant == "coupled") {
+        let of = |v: &str| {
+            rows.iter()
+                .find(|x| x.scene == r.scene && x.variant == v)
+                .map_or(f64::NAN, |x| x.mlups)
+        };
+        out.insert(
+            r.scene.clone(),
+            (r.mlups / of("fluid-only"), r.mlups / kernel, r.mlups / of("baseline")),
+        );
+    }
+    out
+}
+
+/// The table as markdown.
+pub fn to_markdown(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "| scene | run | fluid cells | steps | threads | wall s | MLUPS | LBM MLUPS/core | LBM | boundary | exchange \
+         | map | reconstruct | rigid body | forces | no task |\n|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        let _ = write!(
+            s,
+            "| {} | {} | {} | {} | {} | {:.2} | {:.1} | {:.1} |",
+            r.scene, r.variant, r.fluid_cells, r.steps, r.threads, r.wall_seconds, r.mlups, r.lbm_mlups_per_core
+        );
+        for &x in &r.shares {
+            // Parts a run does not have measure 0; a rounding below 0.05 % prints as 0.0 %.
+            let x = if x.abs() < 0.05 { 0.0 } else { x };
+            let _ = write!(s, " {x:.1} % |");
+        }
+        s.push('\n');
+    }
+    s += "\n| scene | coupled / fluid-only | coupled / kernel on big blocks | coupled / baseline |\n|---|---:|---:|---:|\n";
+    for (scene, (a, b, c)) in ratios(rows) {
+        let f = |x: f64| {
+            if x.is_finite() {
+                format!("{x:.2}")
+            } else {
+                "–".to_string()
+            }
+        };
+        let _ = writeln!(s, "| {scene} | {} | {} | {} |", f(a), f(b), f(c));
+    }
+    let _ = writeln!(
+        s,
+        "\nShares are of the thread time (threads × wall seconds); \"no task\" is scheduling and idle time. \
+         Paper, figure 7: {PAPER_SHARES}."
+    );
+    s
+}
+
+/// The table as CSV.
+pub fn to_csv(rows: &[Row]) -> String {
+    let mut s = String::from("scene,run,fluid_cells,steps,threads,wall_seconds,mlups,lbm_mlups_per_core");
+    for (p, _) in PARTS {
+        let _ = write!(s, ",share_{p}");
+    }
+    s += ",share_no_task,checksum_fluid,checksum_particles\n";
+    for r in rows {
+        let _ = write!(
+            s,
+            "{},{},{},{},{},{:.6},{:.6},{:.6}",
+            r.scene, r.variant, r.fluid_cells, r.steps, r.threads, r.wall_seconds, r.mlups, r.lbm_mlups_per_core
+        );
+        for x in &r.shares {
+            let _ = write!(s, ",{x:.4}");
+        }
+        let _ = writeln!(s, ",{},{}", r.checksums.0, r.checksums.1);
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The quick table as the CI runs it: every row's part times fit in its thread time, the two runs of
+    /// a scene share their blocks and fluid cells, only the coupled run has coupling and rigid-body
+    /// work, and MLUPS and the ratios follow from the measured times.
+    #[test]
+    fn quick_table_is_consistent() {
+        let out = std::env::temp_dir().join(format!("blockflow-bench-coupled-{}", std::process::id()));
+        let o = CoupledOptions {
+            quick: true,
+            threads: 2,
+            baseline: None,
+            out: out.clone(),
+            configs: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs"),
+        };
+        let rows = run(&o).expect("quick bench");
+        assert_eq!(rows.len(), 2 * 3 + 1, "three scenes twice and the kernel");
+        for r in &rows {
+            // Task CPU time never exceeds the thread time (a task's CPU time is at most its wall time).
+            assert!(r.shares[..PARTS.len()].iter().all(|&s| s >= 0.0), "{r:?}");
+            assert!(r.share("idle") > -0.5, "parts exceed the thread time: {r:?}");
+            let mlups = r.fluid_cells as f64 * r.steps as f64 / r.wall_seconds / 1e6;
+            assert!((r.mlups - mlups).abs() <= 1e-9 * mlups, "{r:?}");
+            // The sweeps' CPU time is part of the thread time: per core at least the run's MLUPS / T.
+            assert!(
+                r.lbm_mlups_per_core >= r.mlups / r.threads as f64 * (1.0 - 1e-9),
+                "{r:?}"
+            );
+            assert!(r.share("lbm") > 0.0 && r.share("exchange") > 0.0, "{r:?}");
+        }
+        for pair in rows.chunks(2).filter(|p| p.len() == 2 && p[0].variant == "coupled") {
+            let (c, f) = (&pair[0], &pair[1]);
+            assert_eq!((f.scene.as_str(), f.variant.as_str()), (c.scene.as_str(), "fluid-only"));
+            assert_eq!(
+                (c.fluid_cells, c.steps),
+                (f.fluid_cells, f.steps),
+                "same blocks and cells"
+            );
+            for part in ["map", "reconstruct", "rigid_body", "forces"] {
+                assert_eq!(f.share(part), 0.0, "{part} in the fluid-only run of {}", f.scene);
+                assert!(c.share(part) > 0.0, "no {part} in the coupled run of {}", c.scene);
+            }
+            assert_eq!(f.checksums.1, "-", "a fluid-only run has no particle checksum");
+            assert_ne!(
+                c.checksums.0, f.checksums.0,
+                "the bodies change the fluid of {}",
+                c.scene
+            );
+            let (to_fluid, _, _) = ratios(&rows)[&c.scene];
+            assert!((to_fluid - c.mlups / f.mlups).abs() <= 1e-12 * to_fluid);
+        }
+        let table = std::fs::read_to_string(out.join("coupled.md")).expect("coupled.md");
+        assert!(table.contains("| hopper-small | coupled |") && table.contains(PAPER_SHARES));
+        let _ = std::fs::remove_dir_all(&out);
+    }
+}
