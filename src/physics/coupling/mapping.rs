@@ -13,7 +13,7 @@ use super::rows::{bit_cells, interior_mask, CellBits};
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
 use crate::physics::geometry::flags;
-use crate::physics::particle_cells::{LinkCell, MapBody, ParticleCells, StaticRows};
+use crate::physics::particle_cells::{LinkCell, MapBody, ParticleCells, RowIndex, StaticRows};
 use blockflow_kernels::d3q19::{C, Q};
 use blockflow_kernels::sweep::Segment;
 use blockflow_kernels::Real;
@@ -116,7 +116,14 @@ fn fill_sphere<T: Real>(
     for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
         for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
             for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
-                let ox2: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).map(|o| o * o).collect();
+                let ox: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).collect();
+                let ox2: Vec<f64> = ox.iter().map(|o| o * o).collect();
+                // Along one image's range the offset grows with x, so the cells of a row inside the
+                // sphere (ox² + oy² + oz² ≤ R²) are one run around the smallest |ox|: found from there
+                // with the same test at its two ends. (A sphere wider than half the domain could wrap
+                // within the range: then every cell is tested.)
+                let monotone = ox.windows(2).all(|w| w[0] < w[1]);
+                let centre = (0..ox2.len()).fold(0, |m, j| if ox2[j] < ox2[m] { j } else { m });
                 let oy: Vec<f64> = (ry.0..=ry.1).map(|k| axis(1, k)).collect();
                 for z in rz.0..=rz.1 {
                     let oz = axis(2, z);
@@ -125,21 +132,39 @@ fn fill_sphere<T: Real>(
                         if yz > r2 {
                             continue;
                         }
-                        let row = l.idx(0, y as usize, z as usize);
-                        let bits = occ.row_mut(y as usize, z as usize);
-                        // Branch-free: whether a cell is inside is as good as random to a predictor. The
-                        // row's bits gather in `acc` and go to memory once per word.
-                        let fluid = statics.fluid.row(y as usize, z as usize);
-                        let (mut acc, mut w) = (0u64, rx.0 as usize / 64);
-                        for (jx, x) in (rx.0 as usize..=rx.1 as usize).enumerate() {
-                            let i = row + x;
-                            let inside = (fluid[x / 64] >> (x % 64)) & 1 != 0 && ox2[jx] + yz <= r2;
-                            owner[i] = if inside { id1 } else { owner[i] };
+                        let (y, z) = (y as usize, z as usize);
+                        let inside = |j: usize| ox2[j] + yz <= r2;
+                        let run = if !monotone {
+                            None
+                        } else if !inside(centre) {
+                            continue;
+                        } else {
+                            let (mut lo, mut hi) = (centre, centre);
+                            while lo > 0 && inside(lo - 1) {
+                                lo -= 1;
+                            }
+                            while hi + 1 < ox2.len() && inside(hi + 1) {
+                                hi += 1;
+                            }
+                            Some((lo, hi))
+                        };
+                        let row = l.idx(0, y, z);
+                        let fluid = statics.fluid.row(y, z);
+                        let bits = occ.row_mut(y, z);
+                        let x0 = rx.0 as usize;
+                        // Branch-free inside the run: whether a cell is static fluid is as good as random
+                        // to a predictor. The row's bits gather in `acc` and go to memory once per word.
+                        let (lo, hi) = run.unwrap_or((0, ox2.len() - 1));
+                        let (mut acc, mut w) = (0u64, (x0 + lo) / 64);
+                        for j in lo..=hi {
+                            let x = x0 + j;
+                            let on = (fluid[x / 64] >> (x % 64)) & 1 != 0 && (run.is_some() || inside(j));
+                            owner[row + x] = if on { id1 } else { owner[row + x] };
                             if x / 64 != w {
                                 bits[w] |= acc;
                                 (acc, w) = (0, x / 64);
                             }
-                            acc |= (inside as u64) << (x % 64);
+                            acc |= (on as u64) << (x % 64);
                         }
                         bits[w] |= acc;
                     }
@@ -227,7 +252,7 @@ fn rows<T: Real>(
     let changed: Vec<bool> = match old_occ {
         Some(prev) if reusable => (0..fz)
             .flat_map(|z| (0..fy).map(move |y| (y, z)))
-            .map(|(y, z)| occ.row(y, z) != prev.row(y, z))
+            .map(|(y, z)| occ.row(y, z).iter().zip(prev.row(y, z)).any(|(a, b)| a != b))
             .collect(),
         _ => Vec::new(),
     };
@@ -254,22 +279,27 @@ fn rows<T: Real>(
     let around =
         |flags: &[bool], y: usize, z: usize| (z - 1..=z + 1).any(|zz| (y - 1..=y + 1).any(|yy| flags[yy + fy * zz]));
     let mut row = 0;
+    // The first of the current run of clean rows.
+    let mut clean: Option<usize> = None;
     for z in 1..fz - 1 {
         for y in 1..fy - 1 {
-            index.segments.push(pc.segments.len() as u32);
-            index.link_cells.push(pc.link_cells.len() as u32);
             if reusable && !around(&changed, y, z) {
-                let (s0, s1) = (prev_index.segments[row] as usize, prev_index.segments[row + 1] as usize);
-                let (k0, k1) = (
-                    prev_index.link_cells[row] as usize,
-                    prev_index.link_cells[row + 1] as usize,
-                );
-                pc.segments.extend_from_slice(&prev_segments[s0..s1]);
-                pc.link_cells.extend_from_slice(&prev_links[k0..k1]);
-                index.counts.push(prev_index.counts[row]);
+                // A clean row: its entries are copied with the run of clean rows it belongs to.
+                clean.get_or_insert(row);
                 row += 1;
                 continue;
             }
+            if let Some(first) = clean.take() {
+                copy_rows(
+                    (&mut pc.segments, &mut pc.link_cells),
+                    index,
+                    (&prev_segments, &prev_links),
+                    &prev_index,
+                    first..row,
+                );
+            }
+            index.segments.push(pc.segments.len() as u32);
+            index.link_cells.push(pc.link_cells.len() as u32);
             // Fluid cells, near-boundary cells and cells with a particle link of this row.
             let mut counts = [0u32; 3];
             let base = l.idx(0, y, z);
@@ -336,6 +366,15 @@ fn rows<T: Real>(
             row += 1;
         }
     }
+    if let Some(first) = clean.take() {
+        copy_rows(
+            (&mut pc.segments, &mut pc.link_cells),
+            index,
+            (&prev_segments, &prev_links),
+            &prev_index,
+            first..row,
+        );
+    }
     index.segments.push(pc.segments.len() as u32);
     index.link_cells.push(pc.link_cells.len() as u32);
     index.valid = true;
@@ -344,6 +383,27 @@ fn rows<T: Real>(
     pc.spare.segments = prev_segments;
     pc.spare.link_cells = prev_links;
     pc.spare.index = prev_index;
+}
+
+/// Appends the entries of the previous mapping's `rows` (consecutive interior rows) to the new lists and
+/// row index: one copy per list for the whole run.
+fn copy_rows(
+    (to_segments, to_links): (&mut Vec<Segment>, &mut Vec<LinkCell>),
+    index: &mut RowIndex,
+    (segments, links): (&[Segment], &[LinkCell]),
+    prev: &RowIndex,
+    rows: std::ops::Range<usize>,
+) {
+    let (s0, s1) = (prev.segments[rows.start] as usize, prev.segments[rows.end] as usize);
+    let (k0, k1) = (prev.link_cells[rows.start] as usize, prev.link_cells[rows.end] as usize);
+    let (ds, dk) = (to_segments.len() as u32, to_links.len() as u32);
+    for r in rows.clone() {
+        index.segments.push(prev.segments[r] - s0 as u32 + ds);
+        index.link_cells.push(prev.link_cells[r] - k0 as u32 + dk);
+    }
+    index.counts.extend_from_slice(&prev.counts[rows]);
+    to_segments.extend_from_slice(&segments[s0..s1]);
+    to_links.extend_from_slice(&links[k0..k1]);
 }
 
 /// Appends the runs of set bits of a row (its words in order; element index of the row's cell 0:
