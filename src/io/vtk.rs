@@ -145,8 +145,7 @@ fn check_piece(p: &VtkPiece) -> io::Result<()> {
     Ok(())
 }
 
-/// Writes `path` through `path.tmp`, renaming into place only once everything was written.
-/// Writes `path` through `path.tmp` and a rename ([`write_atomic_to`]).
+/// Writes `path` through `path.tmp` and a rename, only once everything was written ([`write_atomic_to`]).
 fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> io::Result<()>) -> io::Result<()> {
     write_atomic_to(path, &tmp_beside(path), false, body).map_err(|(_, e)| e)
 }
