@@ -1100,8 +1100,11 @@ fn usage_errors_are_one_line() {
         &["--steps", "2", "--processes", ""],
         &["--processes"],
     );
-    // the missing argument is on clap's second line
-    let o = Command::new(binary()).arg("run").output().unwrap();
+    // the missing argument is on clap's second line (`run` without a scene runs the demo; `study` needs one)
+    let o = Command::new(binary())
+        .args(["study", "--processes", "2"])
+        .output()
+        .unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");

@@ -111,8 +111,12 @@ pub enum Weights {
     Corrected,
 }
 
+/// Default `balance.coefficients`: the file `blockflow calibrate` writes for this machine. Where the
+/// working folder has none, runs use the copy built into the binary.
+pub const DEFAULT_COEFFICIENTS: &str = "configs/coefficients.toml";
+
 fn d_coefficients() -> String {
-    "configs/coefficients.toml".to_string()
+    DEFAULT_COEFFICIENTS.to_string()
 }
 
 fn d_interval() -> u64 {

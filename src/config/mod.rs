@@ -12,7 +12,10 @@ mod particles;
 mod processes;
 mod run;
 
-pub use balance::{BalanceConfig, DiffusiveMode, SplitKind, Strategy, Weights, DEFAULT_BANDWIDTH, DEFAULT_LATENCY};
+pub use balance::{
+    BalanceConfig, DiffusiveMode, SplitKind, Strategy, Weights, DEFAULT_BANDWIDTH, DEFAULT_COEFFICIENTS,
+    DEFAULT_LATENCY,
+};
 pub use domain::DomainConfig;
 pub use fluid::{FluidConfig, KernelChoice, Precision};
 pub use parse::{apply_override, load, parse, parse_table};

@@ -37,6 +37,10 @@ use serde::Deserialize;
 use super::{row_bh, row_coup, row_lbm, row_rb, PartTimes, Quantities};
 use crate::error::{Error, Result};
 
+/// `configs/coefficients.toml` as it was when this binary was built: the coefficients a run uses when
+/// `balance.coefficients` is the default path and the working folder has no such file.
+pub const BUILT_IN_COEFFICIENTS: &str = include_str!("../../configs/coefficients.toml");
+
 /// Where a set of coefficients came from (section 3.5: coefficients are valid only for the machine,
 /// implementation and algorithms they were measured with).
 #[derive(Clone, Debug, Default, PartialEq, Deserialize)]

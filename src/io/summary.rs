@@ -1,6 +1,7 @@
 //! `summary.json`: the stable result record of a run (DESIGN.md, "Command line and output contract").
 //! Names are never renamed; fields that do not apply to a run are absent.
 
+use crate::physics::parts::Part;
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -22,6 +23,21 @@ pub struct PartsSeconds {
     /// Rigid-body sub-steps.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rigid_body: Option<f64>,
+}
+
+impl PartsSeconds {
+    /// Every part with its label ([`Part::label`]) and its seconds (None: the run has no such part), in
+    /// the order of the step's tables: LBM, boundary, exchange, map, reconstruct, rigid body.
+    pub fn labelled(&self) -> [(&'static str, Option<f64>); 6] {
+        [
+            (Part::Lbm.label(), Some(self.lbm)),
+            (Part::Boundary.label(), Some(self.boundary)),
+            (Part::Exchange.label(), Some(self.exchange)),
+            (Part::Map.label(), self.map),
+            (Part::Reconstruct.label(), self.reconstruct),
+            (Part::RigidBody.label(), self.rigid_body),
+        ]
+    }
 }
 
 /// Hashes over the exact bits of the final state (hex).

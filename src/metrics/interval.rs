@@ -7,6 +7,7 @@ use super::cost_model::{model_run, Machine, RecordedRun};
 use super::edge_cut::edge_cut_mean;
 use super::load::{load_imbalance, process_loads};
 use crate::physics::domain::DomainSpec;
+use crate::physics::parts::ByPart;
 use serde::Serialize;
 
 /// Measurements of one interval of steps. `study.json` writes the fields the study models (the measured
@@ -54,6 +55,9 @@ pub struct IntervalStats {
     /// Bytes packed into cross-process messages (the live run).
     #[serde(skip)]
     pub message_bytes: u64,
+    /// Task CPU seconds per part over the interval (the live run).
+    #[serde(skip)]
+    pub part_seconds: ByPart<f64>,
     /// Seconds of the balancing step at the end of the interval: measured for the live run (weights,
     /// partition, migration, re-arm); partition measured plus migration modeled for a counterfactual.
     #[serde(skip)]

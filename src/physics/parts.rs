@@ -57,6 +57,18 @@ impl Part {
         }
     }
 
+    /// Label in tables and figures: `LBM`, `boundary`, `exchange`, `rigid body`, `map`, `reconstruct`.
+    pub fn label(self) -> &'static str {
+        match self {
+            Part::Lbm => "LBM",
+            Part::Boundary => "boundary",
+            Part::Exchange => "exchange",
+            Part::RigidBody => "rigid body",
+            Part::Map => "map",
+            Part::Reconstruct => "reconstruct",
+        }
+    }
+
     /// Whether the part counts into the workload m_tot of eq. (16) (every part but the exchange).
     pub fn is_workload(self) -> bool {
         self != Part::Exchange

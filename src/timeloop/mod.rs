@@ -25,6 +25,7 @@ use crate::error::Result;
 use crate::metrics::cost_model::{CommModel, Machine};
 use crate::metrics::interval::{IntervalLog, IntervalStats};
 use crate::metrics::load::predicted_imbalance;
+use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
 use crate::pipeline::{Pipeline, PipelineConfig};
 use crate::scenes::Scene;
@@ -55,6 +56,8 @@ pub struct TimeLoop<T: Real> {
     observers: Vec<Box<dyn Observer<T>>>,
     /// Wall seconds spent stepping (graph runs, their accounting, balancing), outputs at stops excluded.
     stepping_seconds: f64,
+    /// The pipeline's CPU seconds per part after the last recorded graph run.
+    parts_before: ByPart<f64>,
 }
 
 impl<T: Real> TimeLoop<T> {
@@ -88,6 +91,7 @@ impl<T: Real> TimeLoop<T> {
             interval: cfg.balance.interval.max(1),
             observers: Vec::new(),
             stepping_seconds: 0.0,
+            parts_before: ByPart::default(),
         })
     }
 
@@ -225,6 +229,11 @@ impl<T: Real> TimeLoop<T> {
         let cur = self.log.current_mut();
         cur.wall_seconds += run.wall_seconds;
         cur.message_bytes += run.message_bytes;
+        let parts = self.pipe.totals().part_cpu;
+        for part in Part::ALL {
+            cur.part_seconds[part] += parts[part] - self.parts_before[part];
+        }
+        self.parts_before = parts;
         for (acc, x) in self.block_load.iter_mut().zip(run.block_load) {
             *acc += x;
         }

@@ -3,8 +3,9 @@
 //! initial assignment by `balance.weights`.
 
 use crate::balance::{self, weights};
-use crate::config::{Config, PinConfig, StealConfig, Weights};
+use crate::config::{Config, PinConfig, StealConfig, Weights, DEFAULT_COEFFICIENTS};
 use crate::error::{Error, Result};
+use crate::estimator::coefficients::BUILT_IN_COEFFICIENTS;
 use crate::estimator::Coefficients;
 use crate::physics::coupling;
 use crate::physics::domain::DomainSpec;
@@ -114,18 +115,23 @@ pub fn make_executor(cfg: &Config) -> Result<Executor> {
 }
 
 /// The estimator coefficients of `balance.coefficients` when `balance.weights` needs them (`estimator`,
-/// `corrected`); the error names the file and key.
+/// `corrected`): the file, or for the default path without such a file in the working folder the copy
+/// built into the binary; the error names the file and key.
 pub fn coefficients(cfg: &Config) -> Result<Option<Coefficients>> {
-    match cfg.balance.weights {
-        Weights::Estimator | Weights::Corrected => Coefficients::load(Path::new(&cfg.balance.coefficients))
-            .map(Some)
-            .map_err(|e| {
-                Error::Config(format!(
-                    "balance.coefficients: {e}; run `blockflow calibrate` to write one"
-                ))
-            }),
-        Weights::Cells | Weights::Measured => Ok(None),
+    if !matches!(cfg.balance.weights, Weights::Estimator | Weights::Corrected) {
+        return Ok(None);
     }
+    let path = Path::new(&cfg.balance.coefficients);
+    let loaded = if cfg.balance.coefficients == DEFAULT_COEFFICIENTS && !path.exists() {
+        Coefficients::parse(BUILT_IN_COEFFICIENTS, "the built-in configs/coefficients.toml")
+    } else {
+        Coefficients::load(path)
+    };
+    loaded.map(Some).map_err(|e| {
+        Error::Config(format!(
+            "balance.coefficients: {e}; run `blockflow calibrate` to write one"
+        ))
+    })
 }
 
 /// The initial assignment of a configuration: the block weights of `balance.weights` before anything

@@ -3,6 +3,8 @@
 //! checkpoints.
 
 mod outputs;
+mod recap;
+mod report;
 pub mod resources;
 mod summary;
 
@@ -10,7 +12,9 @@ use crate::app::signals;
 use crate::checkpoint::{self, Checkpoint};
 use crate::config::{Config, Precision};
 use crate::error::{Error, Result};
+use crate::io::plots;
 use crate::io::summary::Summary;
+use crate::metrics::interval::IntervalStats;
 use crate::physics::simulation::Simulation;
 use crate::scenes::{self, FluidView, Scene};
 use crate::timeloop::{Flow, Recording, RunEnd, TimeLoop};
@@ -27,9 +31,9 @@ use std::sync::Arc;
 #[derive(clap::Args, Debug)]
 #[allow(rustdoc::invalid_html_tags)] // the doc comments are the command-line help: `<step>` is literal there
 pub struct RunArgs {
-    /// Scene file (TOML), e.g. configs/channel.toml. With --restart it may be left out; if given, it
-    /// must describe the checkpoint's physics.
-    #[arg(required_unless_present = "restart")]
+    /// Scene file (TOML), e.g. configs/hopper-small.toml. Without one, the demo built into the binary
+    /// (configs/demo.toml: spheres settling through a hopper on 2 virtual processes, rebalanced every 100
+    /// steps). With --restart it may be left out; if given, it must describe the checkpoint's physics.
     pub scene: Option<PathBuf>,
     /// Override a key of the scene file: --set fluid.tau=0.6 (repeatable; same dotted path as the file).
     #[arg(long = "set", value_name = "KEY=VALUE")]
@@ -137,13 +141,10 @@ pub fn execute(args: RunArgs) -> Result<()> {
             let cfg = checkpoint::restart_config(&ck, args.scene.as_deref(), &set)?;
             (cfg, Some(Arc::new(ck)))
         }
-        None => (
-            crate::config::load(
-                args.scene.as_deref().expect("clap requires SCENE without --restart"),
-                &set,
-            )?,
-            None,
-        ),
+        None => match args.scene.as_deref() {
+            Some(path) => (crate::config::load(path, &set)?, None),
+            None => (crate::config::parse(DEMO, DEMO_NAME, &set)?, None),
+        },
     };
     signals::install_handlers()?;
     let opts = RunOptions {
@@ -151,35 +152,45 @@ pub fn execute(args: RunArgs) -> Result<()> {
         out: args.out,
         vtk_every: args.vtk,
         progress: true,
-        scene_path: args.scene,
+        scene_path: args
+            .scene
+            .or_else(|| args.restart.is_none().then(|| PathBuf::from(DEMO_NAME))),
         trace: args.trace,
         restart,
     };
     let dir = output_dir(&cfg, &opts);
     let s = run(&cfg, &opts)?;
-    let mut text = format!(
-        "{}: {} steps, {} fluid cells in {} blocks, {} x {} threads, {:.2} s, {:.1} MLUPS ({})\n",
-        s.scene,
-        s.steps,
-        s.fluid_cells,
-        s.blocks,
-        s.processes,
-        s.threads_per_process,
-        s.wall_seconds,
-        s.mlups,
-        s.precision
-    );
-    for (k, v) in &s.observables {
-        text += &format!("  {k} = {v:.6e}\n");
-    }
-    let sum = match &s.checksum.particles {
-        Some(p) => format!("checksums fluid {} particles {p}", s.checksum.fluid),
-        None => format!("checksum {}", s.checksum.fluid),
-    };
-    text += &format!("  {sum}; results in {}\n", dir.display());
-    crate::app::print_out(&text);
+    report::write(&dir, &s, &command_line())?;
+    crate::app::print_out(&recap::recap(&s, &cfg, &dir));
     Ok(())
 }
+
+/// This process's command line, quoted for a POSIX shell where a word needs it.
+fn command_line() -> String {
+    let quote = |a: String| {
+        if !a.is_empty() && a.chars().all(|c| c.is_ascii_alphanumeric() || "-_./=:,@+".contains(c)) {
+            a
+        } else {
+            format!("'{}'", a.replace('\'', "'\\''"))
+        }
+    };
+    let mut args = std::env::args();
+    let program = args.next().map_or("blockflow".to_string(), |p| {
+        Path::new(&p)
+            .file_name()
+            .map_or(p.clone(), |n| n.to_string_lossy().to_string())
+    });
+    std::iter::once(program)
+        .chain(args.map(quote))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The scene `blockflow run` runs without a scene file: `configs/demo.toml`, built into the binary.
+pub const DEMO: &str = include_str!("../../../configs/demo.toml");
+
+/// The name the demo's messages and output folder (`out/demo`) go by.
+pub const DEMO_NAME: &str = "configs/demo.toml";
 
 /// Command-line options of `blockflow run` that override the scene file.
 #[derive(Clone, Debug, Default)]
@@ -384,6 +395,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
             .map_err(|e| crate::error::io_err(path, e))?;
     }
     crate::io::intervals::write(&dir.join("intervals.csv"), tl.intervals())?;
+    figures(dir, cfg, tl.intervals(), tl.sim().particles.is_some())?;
     let loop_time = tl.stepping_seconds();
     let done = tl.sim().step - start_step;
     summary.wall_seconds = loop_time;
@@ -426,4 +438,19 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     summary.status = "ok".to_string();
     write_summary(dir, &summary)?;
     Ok(summary)
+}
+
+/// The run's figures: `balance.png` on several processes, `parts.png` with particles (none for a run
+/// without a closed interval).
+fn figures(dir: &Path, cfg: &Config, intervals: &[IntervalStats], particulate: bool) -> Result<()> {
+    if intervals.is_empty() {
+        return Ok(());
+    }
+    if cfg.processes.count > 1 {
+        plots::run::balance_figure(&dir.join("balance.png"), intervals)?;
+    }
+    if particulate {
+        plots::run::parts_figure(&dir.join("parts.png"), intervals)?;
+    }
+    Ok(())
 }

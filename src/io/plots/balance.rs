@@ -5,7 +5,7 @@
 //! Same conventions as [`super`]: embedded font, non-finite values skipped, an error naming the
 //! file when there is nothing to draw.
 
-use super::{canvas, colour, legend_strip, line_panel, range, render};
+use super::{canvas, colour, legend_strip, legend_width, line_panel, range, render};
 use crate::error::{Error, Result};
 use plotters::prelude::*;
 use std::path::Path;
@@ -50,9 +50,11 @@ fn chart(path: &Path, title: &str, y_desc: &str, scale: f64, lines: &[StrategyLi
     };
     let y1 = if ymax > 0.0 { ymax * 1.08 } else { 1.0 };
     let (x0, x1) = if x1 > x0 { (x0, x1) } else { (x0 - 1.0, x1 + 1.0) };
+    let names: Vec<String> = lines.iter().map(|l| l.0.clone()).collect();
+    let legend_px = legend_width(&names, 18.0, 220, STUDY_FIGURE_SIZE.0);
     render(path, || {
         let (base, root) = canvas(path, STUDY_FIGURE_SIZE, title)?;
-        let (plot, legend) = root.split_horizontally(STUDY_FIGURE_SIZE.0 - 220);
+        let (plot, legend) = root.split_horizontally(STUDY_FIGURE_SIZE.0 - legend_px);
         let coloured: Vec<(RGBColor, Vec<(f64, f64)>)> = lines
             .iter()
             .enumerate()
@@ -67,7 +69,6 @@ fn chart(path: &Path, title: &str, y_desc: &str, scale: f64, lines: &[StrategyLi
             (0.0, y1),
             &coloured,
         )?;
-        let names: Vec<String> = lines.iter().map(|l| l.0.clone()).collect();
         legend_strip(&legend, "strategy", &names, 18.0)?;
         base.present()?;
         Ok(())

@@ -1,7 +1,7 @@
 //! PNG figures: the shared drawing pieces (DejaVu Sans embedded in the binary, the colour palette, canvas,
 //! legend strip, line panel, tick labels) and one file per family of figures: [`calibration`] (figures
-//! 6–8 of the workload evaluation), [`balance`] (figures 10 and 11 of the study) and [`scan`] (run time
-//! against error, stability maps).
+//! 6–8 of the workload evaluation), [`balance`] (figures 10 and 11 of the study), [`scan`] (run time
+//! against error, stability maps) and [`run`] (load balance and time per part of one run).
 //!
 //! Plain data in, PNG out (plotters' bitmap backend; `path` should end in `.png`, the encoder is chosen by
 //! the extension). Text is set in DejaVu Sans embedded in the binary (the `dejavu` crate, registered with
@@ -10,6 +10,7 @@
 
 pub mod balance;
 pub mod calibration;
+pub mod run;
 pub mod scan;
 
 pub use calibration::{figure6, figure7, figure8, figure8_size, BlockSeries, FIGURE6_SIZE, FIGURE7_SIZE};
@@ -137,6 +138,14 @@ pub(super) fn range(values: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     Some((lo, hi))
 }
 
+/// Width of a legend strip ([`legend_strip`]) for `names` set at `size` px: the swatch and gap (62 px),
+/// about 0.6 em per character of the longest name and a margin; at least `min`, at most half of
+/// `figure_width`.
+pub(super) fn legend_width(names: &[String], size: f64, min: u32, figure_width: u32) -> u32 {
+    let longest = names.iter().map(|n| n.chars().count()).max().unwrap_or(0) as f64;
+    ((80.0 + 0.6 * size * longest) as u32).clamp(min, figure_width / 2)
+}
+
 /// A legend in its own strip: a bold heading, then one coloured line and name per entry (colour i).
 pub(super) fn legend_strip(area: &Area, heading: &str, names: &[String], size: f64) -> DrawResult {
     area.draw(&Text::new(heading.to_string(), (12, 60), bold(18.0)))?;
@@ -190,4 +199,16 @@ pub(super) fn line_panel(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_legend_widens_for_long_names_within_half_the_figure() {
+        assert_eq!(super::legend_width(&["f64".to_string()], 16.0, 330, 1400), 330);
+        let long = "drag_array cli f32 solid_fraction=0.125 (order 1.9)".to_string();
+        // 62 px of swatch and at least 9 px per character at 16 px.
+        assert!(super::legend_width(std::slice::from_ref(&long), 16.0, 330, 1400) >= 62 + 9 * long.len() as u32);
+        assert_eq!(super::legend_width(&["x".repeat(500)], 16.0, 330, 1400), 700);
+    }
 }

@@ -1,7 +1,7 @@
 //! PNG figure of `blockflow sweep`: error against run time on log–log axes, one line
 //! per variant, the fitted order of convergence in the legend. Same conventions as [`super`].
 
-use super::{bold, canvas, colour, font, legend_strip, render, GRID};
+use super::{bold, canvas, colour, font, legend_strip, legend_width, render, GRID};
 use crate::error::{Error, Result};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
@@ -38,9 +38,11 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
     };
     let (x0, x1) = span(&xs);
     let (y0, y1) = span(&ys);
+    let names: Vec<String> = lines.iter().map(|l| l.0.clone()).collect();
     render(path, || {
         let (base, root) = canvas(path, SWEEP_FIGURE_SIZE, title)?;
-        let (plot, legend) = root.split_horizontally(SWEEP_FIGURE_SIZE.0 - 330);
+        let (plot, legend) =
+            root.split_horizontally(SWEEP_FIGURE_SIZE.0 - legend_width(&names, 16.0, 330, SWEEP_FIGURE_SIZE.0));
         let mut c = ChartBuilder::on(&plot)
             .margin(12)
             .margin_right(30)
@@ -64,7 +66,6 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
             c.draw_series(LineSeries::new(pts.iter().copied(), col.stroke_width(2)))?;
             c.draw_series(pts.iter().map(|&p| Circle::new(p, 4, col.filled())))?;
         }
-        let names: Vec<String> = lines.iter().map(|l| l.0.clone()).collect();
         legend_strip(&legend, "variant", &names, 16.0)?;
         base.present()?;
         Ok(())
