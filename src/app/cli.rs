@@ -38,7 +38,8 @@ pub enum Command {
     /// every strategy for real and prints modeled against measured.
     Study(StudyArgs),
     /// Run a scene over every combination of the varied keys: sweep.csv (values, status, wall and core
-    /// seconds, MLUPS, observables) and sweep.png (error against run time, log-log, fitted orders).
+    /// seconds, MLUPS, load imbalance, cores, observables) and sweep.png (error against run time,
+    /// log-log, fitted orders; without an error observable, MLUPS, wall time and LI per configuration).
     Sweep(SweepArgs),
     /// Stability map: run every combination of one or two keys for a fixed number of steps with the
     /// instability detector on; stress.png and stress.csv say stable, inaccurate or unstable (at which step).

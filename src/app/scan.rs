@@ -1,8 +1,10 @@
 //! `blockflow sweep SCENE --vary KEY=V1,V2,... [--vary ...] [--set ...] [--repeat N] [--steps N]
 //! [--error OBSERVABLE] [--out DIR]`: runs a scene over every combination of the varied
-//! keys and writes `sweep.csv` (the varied values, status, steps, wall and core seconds, MLUPS and every
-//! observable) and `sweep.png` (error against run time, log–log, one line per variant with the fitted
-//! order of convergence in the legend).
+//! keys and writes `sweep.csv` (the varied values, status, steps, wall and core seconds, MLUPS, median
+//! load imbalance, the core of each thread and every observable) and `sweep.png`: error against run
+//! time (log–log, one line per variant with the fitted order of convergence in the legend), or, for a
+//! scene without an error observable (a pinning or placement experiment), MLUPS, wall time and load
+//! imbalance as one bar per configuration.
 //!
 //! The first `--vary` key drives convergence (resolution above all): a variant is one combination of the
 //! other keys, and its order is the least-squares slope of −log(error) against log(first key). With
@@ -12,6 +14,7 @@
 use crate::app::run::{self, RunOptions};
 use crate::config;
 use crate::error::{io_err, Error, Result};
+use crate::io::plots::scan::ConfigurationBar;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
@@ -103,6 +106,11 @@ pub struct ScanRow {
     pub core_seconds: f64,
     /// Million fluid-cell updates per second.
     pub mlups: f64,
+    /// Median load imbalance eq. (18) over the run's intervals (0 on one process; NaN for a failed run).
+    pub imbalance: f64,
+    /// The core each worker thread was pinned to, `;`-separated in thread order (`-` for an unpinned
+    /// thread; empty for a failed run).
+    pub cores: String,
     /// The scene's observables.
     pub observables: BTreeMap<String, f64>,
     /// The step at which an unstable run was stopped.
@@ -242,11 +250,34 @@ pub fn scan(opts: &ScanOptions) -> Result<ScanReport> {
     let (orders, lines) = variant_lines(&keys, &rows, &err_of);
     let pareto = pareto_front(&rows.iter().map(|r| (r.wall_seconds, err_of(r))).collect::<Vec<_>>());
     write_csv(opts, &keys, &rows)?;
-    if let Some(e) = &error {
-        let title = format!("{}: {e} against run time", opts.scene.display());
-        if let Err(err) = crate::io::plots::scan::error_vs_time(&opts.out.join("sweep.png"), &title, e, &lines) {
-            eprintln!("sweep: no figure: {err}");
+    let figure = opts.out.join("sweep.png");
+    let drawn = match &error {
+        Some(e) => {
+            let title = format!("{}: {e} against run time", opts.scene.display());
+            crate::io::plots::scan::error_vs_time(&figure, &title, e, &lines)
         }
+        // No error observable (a pinning or placement experiment): speed, time and balance per run.
+        None => {
+            let title = format!("{}: one bar per configuration", opts.scene.display());
+            let bars: Vec<ConfigurationBar> = rows
+                .iter()
+                .map(|r| ConfigurationBar {
+                    label: keys
+                        .iter()
+                        .zip(&r.values)
+                        .map(|(k, v)| format!("{}={}", k.rsplit('.').next().unwrap_or(k), v.trim_matches('"')))
+                        .collect::<Vec<_>>()
+                        .join(" "),
+                    mlups: r.mlups,
+                    wall_seconds: r.wall_seconds,
+                    imbalance: r.imbalance,
+                })
+                .collect();
+            crate::io::plots::scan::configurations(&figure, &title, &bars)
+        }
+    };
+    if let Err(err) = drawn {
+        eprintln!("sweep: no figure: {err}");
     }
     Ok(ScanReport {
         keys,
@@ -315,6 +346,8 @@ fn one_row(opts: &ScanOptions, cfg: &config::Config, n: usize, combo: &[String])
         wall_seconds: f64::NAN,
         core_seconds: f64::NAN,
         mlups: f64::NAN,
+        imbalance: f64::NAN,
+        cores: String::new(),
         observables: BTreeMap::new(),
     };
     Ok(match run::run(cfg, &run_opts) {
@@ -332,6 +365,13 @@ fn one_row(opts: &ScanOptions, cfg: &config::Config, n: usize, combo: &[String])
                     + p.map.unwrap_or(0.0)
                     + p.reconstruct.unwrap_or(0.0),
                 mlups: s.mlups,
+                imbalance: s.balance.as_ref().map_or(0.0, |b| b.imbalance_median),
+                cores: s
+                    .cores
+                    .iter()
+                    .map(|c| c.map_or("-".to_string(), |c| c.to_string()))
+                    .collect::<Vec<_>>()
+                    .join(";"),
                 observables: s.observables.clone(),
                 failed_step: None,
                 message: None,
@@ -409,7 +449,7 @@ fn variant_lines(
 fn write_csv(opts: &ScanOptions, keys: &[String], rows: &[ScanRow]) -> Result<()> {
     let obs: std::collections::BTreeSet<&String> = rows.iter().flat_map(|r| r.observables.keys()).collect();
     let mut text = keys.join(",");
-    text += ",status,steps,wall_seconds,core_seconds,mlups";
+    text += ",status,steps,wall_seconds,core_seconds,mlups,imbalance,cores";
     for o in &obs {
         text += &format!(",{o}");
     }
@@ -428,8 +468,8 @@ fn write_csv(opts: &ScanOptions, keys: &[String], rows: &[ScanRow]) -> Result<()
             .collect();
         text += &quoted.join(",");
         text += &format!(
-            ",{},{},{:.6e},{:.6e},{:.4}",
-            r.status, r.steps, r.wall_seconds, r.core_seconds, r.mlups
+            ",{},{},{:.6e},{:.6e},{:.4},{:.6e},{}",
+            r.status, r.steps, r.wall_seconds, r.core_seconds, r.mlups, r.imbalance, r.cores
         );
         for o in &obs {
             match r.observables.get(*o) {

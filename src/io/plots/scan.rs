@@ -1,5 +1,7 @@
-//! PNG figure of `blockflow sweep`: error against run time on log–log axes, one line
-//! per variant, the fitted order of convergence in the legend. Same conventions as [`super`].
+//! PNG figures of `blockflow sweep` and `stress`: error against run time on log–log axes, one line per
+//! variant, the fitted order of convergence in the legend ([`error_vs_time`]); MLUPS, wall time and
+//! load imbalance per configuration for a sweep without an error observable ([`configurations`]); the
+//! stability map ([`stability_map`]). Same conventions as [`super`].
 
 use super::{bold, canvas, colour, font, legend_strip, legend_width, render, GRID};
 use crate::error::{Error, Result};
@@ -72,6 +74,87 @@ pub fn error_vs_time(path: &Path, title: &str, y_desc: &str, lines: &[SweepLine]
     })
 }
 
+/// One configuration of a sweep without an error observable: its label and what it measured.
+#[derive(Clone, Debug)]
+pub struct ConfigurationBar {
+    /// The varied values, e.g. `pin=compact count=2`.
+    pub label: String,
+    /// Million fluid-cell updates per second.
+    pub mlups: f64,
+    /// Wall seconds of the time loop.
+    pub wall_seconds: f64,
+    /// Median load imbalance eq. (18) (a fraction).
+    pub imbalance: f64,
+}
+
+/// Size of [`configurations`] in pixels.
+pub const CONFIGURATIONS_SIZE: (u32, u32) = (1400, 1000);
+
+/// The figure of a sweep without an error observable (a pinning or placement experiment): three panels
+/// of bars, MLUPS, wall seconds and median load imbalance, one bar per configuration numbered as in the
+/// key on the right. Non-finite values (failed runs) get no bar; an error when no bar is left.
+pub fn configurations(path: &Path, title: &str, bars: &[ConfigurationBar]) -> Result<()> {
+    let panels: [(&str, Vec<f64>); 3] = [
+        ("MLUPS", bars.iter().map(|b| b.mlups).collect()),
+        ("wall seconds", bars.iter().map(|b| b.wall_seconds).collect()),
+        ("median LI (%)", bars.iter().map(|b| 100.0 * b.imbalance).collect()),
+    ];
+    if !panels[0].1.iter().chain(&panels[1].1).any(|v| v.is_finite()) {
+        return Err(Error::Config(format!("{}: {title}: no data to plot", path.display())));
+    }
+    let names: Vec<String> = bars
+        .iter()
+        .enumerate()
+        .map(|(i, b)| format!("{}: {}", i + 1, b.label))
+        .collect();
+    let legend_px = legend_width(&names, 16.0, 330, CONFIGURATIONS_SIZE.0);
+    let n = bars.len() as f64;
+    render(path, || {
+        let (base, root) = canvas(path, CONFIGURATIONS_SIZE, title)?;
+        let (plot, legend) = root.split_horizontally(CONFIGURATIONS_SIZE.0 - legend_px);
+        let rows = plot.split_evenly((3, 1));
+        for (area, (desc, values)) in rows.iter().zip(&panels) {
+            let top = values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
+            let top = if top > 0.0 { top * 1.1 } else { 1.0 };
+            let mut c = ChartBuilder::on(area)
+                .margin(10)
+                .margin_right(30)
+                .x_label_area_size(40)
+                .y_label_area_size(110)
+                .build_cartesian_2d(0.5..n + 0.5, 0.0..top)?;
+            let dy = super::decimals(top);
+            let fy = move |v: &f64| super::tick(*v, dy);
+            let fx = |v: &f64| {
+                let k = v.round();
+                if (v - k).abs() < 1e-6 && k >= 1.0 && k <= n {
+                    format!("{k:.0}")
+                } else {
+                    String::new()
+                }
+            };
+            c.configure_mesh()
+                .y_desc(*desc)
+                .label_style(font(17.0))
+                .axis_desc_style(font(19.0))
+                .x_labels(bars.len().max(1) * 2 + 1)
+                .y_labels(5)
+                .x_label_formatter(&fx)
+                .y_label_formatter(&fy)
+                .disable_x_mesh()
+                .light_line_style(WHITE)
+                .bold_line_style(GRID)
+                .draw()?;
+            c.draw_series(values.iter().enumerate().filter(|(_, v)| v.is_finite()).map(|(i, &v)| {
+                let x = i as f64 + 1.0;
+                Rectangle::new([(x - 0.35, 0.0), (x + 0.35, v)], colour(i).filled())
+            }))?;
+        }
+        legend_strip(&legend, "configuration", &names, 16.0)?;
+        base.present()?;
+        Ok(())
+    })
+}
+
 /// A short tick label: plain digits between 0.01 and 10⁴, else `1e-5` style.
 fn short(v: f64) -> String {
     if (0.01..1e4).contains(&v.abs()) {
@@ -92,6 +175,31 @@ mod tests {
         assert_eq!(short(0.05), "0.05");
         assert_eq!(short(1e-5), "1e-5");
         assert_eq!(short(2e5), "2e5");
+    }
+
+    #[test]
+    fn configurations_draw_bars_and_refuse_runs_that_all_failed() {
+        let dir = std::env::temp_dir().join(format!("blockflow-conf-fig-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let bar = |label: &str, mlups: f64| ConfigurationBar {
+            label: label.to_string(),
+            mlups,
+            wall_seconds: 10.0 / mlups,
+            imbalance: 0.05,
+        };
+        let p = dir.join("c.png");
+        configurations(
+            &p,
+            "t",
+            &[bar("pin=compact count=1", 20.0), bar("pin=none count=2", 14.0)],
+        )
+        .unwrap();
+        let png = std::fs::read(&p).unwrap();
+        let be = |i: usize| u32::from_be_bytes(png[i..i + 4].try_into().unwrap());
+        assert_eq!((be(16), be(20)), CONFIGURATIONS_SIZE);
+        assert!(configurations(&dir.join("e.png"), "t", &[bar("x", f64::NAN)]).is_err());
+        assert!(!dir.join("e.png").exists());
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
