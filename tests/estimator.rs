@@ -16,9 +16,10 @@ fn min_image(mut d: DVec3, len: [f64; 3], periodic: [bool; 3]) -> DVec3 {
     d
 }
 
-/// C, F, NB, P_L, P_S, K and S of every block of the calibration scene equal a brute-force recount from
-/// the body positions at the start of the last step (one sub-step per step, so the rigid-body quantities
-/// of that step come from those positions too).
+/// C, F, NB, the particle links and link cells, P_L, P_S, K and S of every block of the calibration
+/// scene equal a brute-force recount from the body positions at the start of the last step (one
+/// sub-step per step, so the rigid-body quantities of that step come from those positions too); the
+/// contacts seen are at least the owned ones.
 #[test]
 fn block_quantities_match_a_brute_force_recount() {
     let sets = [
@@ -49,7 +50,7 @@ fn block_quantities_match_a_brute_force_recount() {
     for blk in &sim.blocks {
         let q = Quantities::of(sim, blk.id);
         let l = blk.layout;
-        let (mut f, mut nb) = (0.0, 0.0);
+        let (mut f, mut nb, mut links, mut link_cells) = (0.0, 0.0, 0.0, 0.0);
         let fluid_at = |x: usize, y: usize, z: usize| {
             let i = l.idx(x, y, z);
             let g = d.wrap([
@@ -76,12 +77,38 @@ fn block_quantities_match_a_brute_force_recount() {
                     if near {
                         nb += 1.0;
                     }
+                    // Particle links: neighbours that are static fluid but covered by a body.
+                    let mut here = 0.0;
+                    for c in blockflow_kernels::d3q19::C.iter().skip(1) {
+                        let (nx, ny, nz) = (
+                            (x as i64 + c[0] as i64) as usize,
+                            (y as i64 + c[1] as i64) as usize,
+                            (z as i64 + c[2] as i64) as usize,
+                        );
+                        let static_fluid =
+                            blk.flags[l.idx(nx, ny, nz)] & blockflow::physics::geometry::flags::FLUID != 0;
+                        if static_fluid && !fluid_at(nx, ny, nz) {
+                            here += 1.0;
+                        }
+                    }
+                    links += here;
+                    if here > 0.0 {
+                        link_cells += 1.0;
+                    }
                 }
             }
         }
         assert_eq!(q.c, (l.size[0] * l.size[1] * l.size[2]) as f64);
         assert_eq!(q.f, f, "F of block {}", blk.id);
         assert_eq!(q.nb, nb, "NB of block {}", blk.id);
+        assert_eq!(q.particle_links, links, "particle links of block {}", blk.id);
+        assert_eq!(q.link_cells, link_cells, "link cells of block {}", blk.id);
+        assert_eq!(
+            q.wall_links,
+            (blk.links.noslip.len() + blk.links.moving.len()) as f64,
+            "wall links of block {}",
+            blk.id
+        );
         if !parts.active[blk.id] {
             assert_eq!((q.pl, q.ps, q.k, q.s), (0.0, 0.0, 0.0, 0.0));
             continue;
@@ -124,6 +151,20 @@ fn block_quantities_match_a_brute_force_recount() {
         assert_eq!(q.ps, ps, "P_S of block {}", blk.id);
         assert_eq!(q.k, k, "K of block {}", blk.id);
         assert_eq!(q.s, 1.0);
+        assert!(
+            q.contacts_seen >= q.k,
+            "block {}: seen {} < owned {}",
+            blk.id,
+            q.contacts_seen,
+            q.k
+        );
+        assert!(
+            q.scanned >= q.pl + q.ps,
+            "block {}: scanned {} lists entries",
+            blk.id,
+            q.scanned
+        );
+        assert_eq!(q.rb_active, 1.0);
         total_k += k;
     }
     assert!(total_k > 0.0, "the recount saw contacts");
@@ -149,7 +190,10 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
     let scene = format!("{}/configs/calibration.toml", env!("CARGO_MANIFEST_DIR"));
     let (code, stdout, stderr) = blockflow(&["calibrate", &scene, "--quick", "--out", out.to_str().unwrap()]);
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("in_sample") && stdout.contains("held_out"), "{stdout}");
+    assert!(
+        stdout.contains("step_in_sample") && stdout.contains("interval_held_out"),
+        "{stdout}"
+    );
     for f in [
         "samples.csv",
         "coefficients.toml",
@@ -162,10 +206,24 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
     }
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("calibration.json")).unwrap()).unwrap();
-    for k in ["in_sample", "held_out"] {
-        let v = json["share_within_10pct"][k].as_f64().unwrap();
-        assert!((0.0..=1.0).contains(&v), "{k} = {v}");
+    for model in ["paper", "blockflow"] {
+        for k in [
+            "step_in_sample",
+            "step_held_out",
+            "interval_in_sample",
+            "interval_held_out",
+            "interval_predictive",
+        ] {
+            let v = json["models"][model]["share_within_10pct"][k].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&v), "{model} {k} = {v}");
+        }
     }
+    assert_eq!(json["model"], "blockflow");
+    assert!(json["never_fluid_samples"].as_u64().is_some());
+    // The written coefficients are the blockflow model's, all costs ≥ 0.
+    let c = blockflow::estimator::Coefficients::load(&out.join("coefficients.toml")).unwrap();
+    assert_eq!(c.model, blockflow::estimator::Model::Blockflow);
+    assert!(c.parts.iter().flatten().all(|&a| a >= 0.0), "{:?}", c.parts);
     for part in ["lbm", "bh", "coup1", "coup2", "rb", "total"] {
         assert!(
             json["median"][part].is_number() && json["mad"][part].is_number(),

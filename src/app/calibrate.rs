@@ -1,15 +1,21 @@
 //! `blockflow calibrate`: the workload-estimator calibration of section 3.3. Runs the calibration scene
 //! for every block size and diameter, drops the first 50 steps, records one sample per block per step
-//! (the Table 1 quantities and the measured part times m_X from the task records' thread CPU time), fits
-//! eqs. (10)–(14) by linear least squares, and reports the error statistics of section 3.4 in-sample and
-//! held out (fit without one run, test on it), with and without the blocks that never hold fluid.
+//! (the Table 1 quantities, the tasks' work counters and the measured part times m_X from the task
+//! records' thread CPU time), fits both forms of the workload functions ([`Model`]) by weighted least
+//! squares on the same samples, and reports for each the statistics of section 3.4 per step and per
+//! balancing interval, in-sample and held out (fit without one run, test on it), and the timing noise
+//! floor. The chosen model's coefficients go to `coefficients.toml`.
+//!
+//! Blocks that never hold fluid in a run are left out of the fit and of every statistic: their m_tot
+//! is a few task-clock reads (or 0), so a relative error says nothing of them, and a balancer gives
+//! them whatever the rigid-body terms predict.
 //!
 //! Every run uses one virtual process with one thread and one step per graph, so each task's CPU time
 //! belongs to exactly one block and step.
 
 use crate::config::{self, Config};
 use crate::error::{io_err, Error, Result};
-use crate::estimator::{self, Coefficients, Evaluation, PartTimes, Provenance, Quantities, Sample};
+use crate::estimator::{self, Coefficients, Evaluation, Model, PartTimes, Provenance, Quantities, Sample, Scores};
 use crate::io::plots;
 use crate::scenes;
 use crate::timeloop::{Observer, Recording, RunContext, RunEnd, TimeLoop};
@@ -26,15 +32,24 @@ pub struct CalibrateArgs {
     /// Calibration scene (default configs/calibration.toml).
     #[arg(default_value = "configs/calibration.toml")]
     pub scene: PathBuf,
-    /// Block edge lengths in cells, comma-separated (default 12,16; --quick 12; --paper 24,32,48,64).
+    /// Block edge lengths in cells, comma-separated; with --diameters, every combination is run
+    /// (default: b_s = 16 with D = 6 and 10, b_s = 32 with D = 10 and 15; --quick 12 with D = 4, 6;
+    /// --paper 24,32,48,64 with D = 10, 20).
     #[arg(long, value_delimiter = ',')]
     pub block_sizes: Vec<usize>,
-    /// Sphere diameters in cells, comma-separated (default 4,6; --paper 10,20).
+    /// Sphere diameters in cells, comma-separated (see --block-sizes).
     #[arg(long, value_delimiter = ',')]
     pub diameters: Vec<f64>,
-    /// A short campaign (about two minutes), for tests.
+    /// A short campaign (under a minute), for tests.
     #[arg(long)]
     pub quick: bool,
+    /// The form of the workload functions written to coefficients.toml: blockflow (this engine's
+    /// regressors) or paper (eqs. 10-14). Both are fitted and reported.
+    #[arg(long, default_value = "blockflow")]
+    pub model: String,
+    /// Steps of a balancing interval for the per-interval statistics.
+    #[arg(long, default_value_t = 100)]
+    pub interval: u64,
     /// The paper's sizes (block sizes 24, 32, 48, 64; D = 10, 20; 2.5 T), for big machines.
     #[arg(long, conflicts_with = "quick")]
     pub paper: bool,
@@ -50,12 +65,23 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
             "calibrate: --block-sizes and --diameters must be positive".into(),
         ));
     }
+    let model = Model::parse(&a.model).ok_or_else(|| {
+        Error::Config(format!(
+            "calibrate: --model {}: unknown; use blockflow or paper",
+            a.model
+        ))
+    })?;
+    if a.interval == 0 {
+        return Err(Error::Config("calibrate: --interval must be at least 1 step".into()));
+    }
     let opts = CalibrateOptions {
         scene: a.scene,
         block_sizes: a.block_sizes,
         diameters: a.diameters,
         quick: a.quick,
         paper: a.paper,
+        model,
+        interval: a.interval,
         out: a.out.clone(),
     };
     let report = run(&opts)?;
@@ -78,6 +104,10 @@ pub struct CalibrateOptions {
     pub quick: bool,
     /// The paper's sizes (b_s = 24, 32, 48, 64; D = 10, 20; 2.5 T): for big machines.
     pub paper: bool,
+    /// The model whose coefficients are written.
+    pub model: Model,
+    /// Steps of a balancing interval (per-interval statistics).
+    pub interval: u64,
     /// Output folder.
     pub out: PathBuf,
 }
@@ -117,9 +147,38 @@ impl Observer<f64> for Sampler {
             let row = sim.domain.coords(b)[2];
             let t_star = sim.step as f64 / self.t_unit;
             let (r, bs, d) = (self.run, self.block_size, self.diameter);
+            let counts = [
+                q.c,
+                q.f,
+                q.nb,
+                q.pl,
+                q.ps,
+                q.k,
+                q.s,
+                q.runs,
+                q.wall_links,
+                q.particle_links,
+                q.link_cells,
+                q.map_active,
+                q.map_bodies,
+                q.box_cells,
+                q.rows_derived,
+                q.turned,
+                q.covered,
+                q.rb_active,
+                q.contacts_seen,
+                q.scanned,
+            ];
+            let counts: Vec<String> = counts.iter().map(|x| x.to_string()).collect();
             self.csv += &format!(
-                "{r},{bs},{d},{},{t_star:.6},{b},{row},{},{},{},{},{},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e}\n",
-                sim.step, q.c, q.f, q.nb, q.pl, q.ps, q.k, q.s, m.lbm, m.bh, m.coup1, m.coup2, m.rb
+                "{r},{bs},{d},{},{t_star:.6},{b},{row},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e}\n",
+                sim.step,
+                counts.join(","),
+                m.lbm,
+                m.bh,
+                m.coup1,
+                m.coup2,
+                m.rb
             );
             if let Some(series) = self.fig6.as_mut().and_then(|f| f.get_mut(b)) {
                 series.points.push((t_star, q.f, m.lbm));
@@ -156,38 +215,76 @@ pub struct RunInfo {
 pub struct CalibrationReport {
     /// The runs.
     pub runs: Vec<RunInfo>,
-    /// Samples in the fit.
+    /// Samples in the fit (blocks with fluid).
     pub samples: usize,
-    /// Share of samples with |E_tot| < 10 %: `in_sample`, `held_out`, and both without the blocks that
-    /// never hold fluid.
+    /// Samples of never-fluid blocks, left out of fit and statistics.
+    pub never_fluid_samples: usize,
+    /// Steps of a balancing interval in the per-interval statistics.
+    pub interval: u64,
+    /// The model written to coefficients.toml.
+    pub model: String,
+    /// The written model's shares within 10 % (see [`ModelReport`]).
     pub share_within_10pct: BTreeMap<String, f64>,
-    /// Median of E_X per part (and `total`).
+    /// The written model's median of E_X per part (and `total`).
     pub median: BTreeMap<String, f64>,
-    /// MAD of E_X per part (and `total`).
+    /// The written model's MAD of E_X per part (and `total`).
     pub mad: BTreeMap<String, f64>,
+    /// Both models on the same samples.
+    pub models: BTreeMap<String, ModelReport>,
+    /// What timing noise alone allows.
+    pub noise_floor: NoiseReport,
     /// Median share m_X / m_tot per part.
     pub part_share_median: BTreeMap<String, f64>,
     /// Wall seconds of the whole campaign.
     pub seconds: f64,
 }
 
-fn preset(o: &CalibrateOptions) -> (Vec<usize>, Vec<f64>, f64) {
-    let (bs, d, dur) = if o.paper {
-        (vec![24, 32, 48, 64], vec![10.0, 20.0], 2.5)
+/// The runs of the campaign: (block size, diameter, duration in units of T). The default covers the
+/// hopper scenes' regime (16³ blocks with D = 7.5, 32³ with D = 15): about 12 minutes on 2 cores.
+fn preset(o: &CalibrateOptions) -> Vec<(usize, f64, f64)> {
+    let given = !o.block_sizes.is_empty() || !o.diameters.is_empty();
+    let base: Vec<(usize, f64, f64)> = if o.paper {
+        [24, 32, 48, 64]
+            .iter()
+            .flat_map(|&b| [10.0, 20.0].map(|d| (b, d, 2.5)))
+            .collect()
     } else if o.quick {
-        (vec![12], vec![4.0, 6.0], 0.25)
+        vec![(12, 4.0, 0.25), (12, 6.0, 0.25)]
     } else {
-        (vec![12, 16], vec![4.0, 6.0], 2.5)
+        vec![(16, 6.0, 1.5), (16, 10.0, 1.5), (32, 10.0, 0.4), (32, 15.0, 0.4)]
     };
-    (
-        if o.block_sizes.is_empty() {
-            bs
+    if !given {
+        return base;
+    }
+    let sizes: Vec<usize> = if o.block_sizes.is_empty() {
+        let mut v: Vec<usize> = base.iter().map(|r| r.0).collect();
+        v.dedup();
+        v
+    } else {
+        o.block_sizes.clone()
+    };
+    let diams: Vec<f64> = if o.diameters.is_empty() {
+        let mut v: Vec<f64> = base.iter().map(|r| r.1).collect();
+        v.sort_by(f64::total_cmp);
+        v.dedup();
+        v
+    } else {
+        o.diameters.clone()
+    };
+    // A duration that gives every block size about as many steps as the default's.
+    let duration = |b: usize| {
+        if o.quick {
+            0.25
+        } else if o.paper {
+            2.5
         } else {
-            o.block_sizes.clone()
-        },
-        if o.diameters.is_empty() { d } else { o.diameters.clone() },
-        dur,
-    )
+            (1.5 * 16.0 / b as f64).min(2.5)
+        }
+    };
+    sizes
+        .iter()
+        .flat_map(|&b| diams.iter().map(move |&d| (b, d, duration(b))))
+        .collect()
 }
 
 fn run_config(o: &CalibrateOptions, bs: usize, d: f64, duration: f64) -> Result<Config> {
@@ -239,18 +336,21 @@ fn today() -> String {
 /// and the figures 6–8 into `o.out`.
 pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let t0 = Instant::now();
-    let (sizes, diams, duration) = preset(o);
     std::fs::create_dir_all(&o.out).map_err(|e| io_err(&o.out, e))?;
     // Build every configuration first: bad input fails before any run, and the bar knows the total.
     let mut plans = Vec::new();
-    for &bs in &sizes {
-        for &d in &diams {
-            let cfg = run_config(o, bs, d, duration)?;
-            let scene = scenes::build(&cfg)?;
-            plans.push((bs, d, cfg, scene.steps));
-        }
+    for (bs, d, duration) in preset(o) {
+        let cfg = run_config(o, bs, d, duration)?;
+        let scene = scenes::build(&cfg)?;
+        plans.push(Plan {
+            block_size: bs,
+            diameter: d,
+            duration,
+            cfg,
+            steps: scene.steps,
+        });
     }
-    let c = record(&plans, duration)?;
+    let c = record(&plans)?;
     if c.samples.is_empty() {
         return Err(Error::Config(format!(
             "calibrate: no samples (every run is shorter than the {WARMUP}-step warm-up); raise scene.duration"
@@ -258,61 +358,76 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     }
     let path = o.out.join("samples.csv");
     std::fs::write(&path, &c.csv).map_err(|e| io_err(&path, e))?;
+    // Never-fluid blocks are out of the fit and of every statistic (module documentation).
+    let fluid: Vec<Sample> = c
+        .samples
+        .iter()
+        .filter(|s| !c.never_fluid[s.run][s.block])
+        .copied()
+        .collect();
     let prov = Provenance {
         machine: machine(),
         date: today(),
         commit: git_commit(),
         scenes: plans
             .iter()
-            .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.0, p.1))
+            .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.block_size, p.diameter))
             .collect(),
-        samples: c.samples.len(),
+        samples: fluid.len(),
         fit_quality: BTreeMap::new(),
         note: format!(
-            "blockflow calibrate: {} runs, first {WARMUP} steps of each dropped, one sample per block per step",
-            plans.len()
+            "blockflow calibrate: {} runs, first {WARMUP} steps of each dropped, one sample per block per step; \
+             blocks that never hold fluid left out; weighted (1/m_tot) least squares{}",
+            plans.len(),
+            if o.model.non_negative() {
+                ", coefficients >= 0"
+            } else {
+                ""
+            }
         ),
     };
-    let mut coeffs = estimator::fit(&c.samples, prov.clone());
-    let fluid_only: Vec<Sample> = c
-        .samples
-        .iter()
-        .filter(|s| !c.never_fluid[s.run][s.block])
-        .copied()
-        .collect();
-    let ev: Evaluation = estimator::evaluate(&coeffs, &c.samples);
-    let ev_fluid = estimator::evaluate(&coeffs, &fluid_only);
-    let multi_run = plans.len() > 1;
-    let held = |s: &[Sample]| {
-        if multi_run {
-            estimator::held_out(s, prov.clone())
-        } else {
-            f64::NAN
+    let mut models = BTreeMap::new();
+    let mut chosen = None;
+    for model in [Model::Paper, Model::Blockflow] {
+        let coeffs = estimator::fit(&fluid, prov.clone(), model);
+        let ev: Evaluation = estimator::evaluate(&coeffs, &fluid);
+        let in_sample = estimator::score(&coeffs, &fluid, o.interval);
+        let held = estimator::cross_validate(&fluid, model, o.interval);
+        let r = ModelReport::of(&ev, &in_sample, &held);
+        if model == o.model {
+            chosen = Some((coeffs, ev));
         }
-    };
-    let mut share = BTreeMap::new();
-    share.insert("in_sample".to_string(), ev.share_within_10pct);
-    share.insert("held_out".to_string(), held(&c.samples));
-    share.insert("in_sample_fluid_blocks".to_string(), ev_fluid.share_within_10pct);
-    share.insert("held_out_fluid_blocks".to_string(), held(&fluid_only));
-    coeffs.provenance.fit_quality = share.clone();
+        models.insert(model.name().to_string(), r);
+    }
+    let (mut coeffs, _) = chosen.expect("the chosen model is one of the two");
+    let report_chosen = &models[o.model.name()];
+    coeffs.provenance.fit_quality = report_chosen
+        .share_within_10pct
+        .iter()
+        .filter(|(_, v)| v.is_finite())
+        .map(|(k, v)| (k.clone(), *v))
+        .collect();
     let path = o.out.join("coefficients.toml");
     std::fs::write(&path, coeffs.to_toml()).map_err(|e| io_err(&path, e))?;
-    let mut median = BTreeMap::new();
-    let mut mad = BTreeMap::new();
-    for (k, v) in &ev.per_part {
-        median.insert(k.clone(), v.median);
-        mad.insert(k.clone(), v.mad);
-    }
-    median.insert("total".to_string(), ev.total.median);
-    mad.insert("total".to_string(), ev.total.mad);
-    let share_median = figures(&o.out, &c, &coeffs)?;
+    let share_median = figures(&o.out, &c, &fluid, &coeffs)?;
+    let noise = estimator::noise_floor(&fluid, o.interval);
     let report = CalibrationReport {
         runs: c.runs,
-        samples: c.samples.len(),
-        share_within_10pct: share,
-        median,
-        mad,
+        samples: fluid.len(),
+        never_fluid_samples: c.samples.len() - fluid.len(),
+        interval: o.interval,
+        model: o.model.name().to_string(),
+        share_within_10pct: report_chosen.share_within_10pct.clone(),
+        median: report_chosen.median.clone(),
+        mad: report_chosen.mad.clone(),
+        models,
+        noise_floor: NoiseReport {
+            step: noise.step.share(),
+            interval: noise.interval.share(),
+            step_samples: noise.step.total,
+            interval_samples: noise.interval.total,
+            step_mad: noise.step_mad,
+        },
         part_share_median: share_median,
         seconds: t0.elapsed().as_secs_f64(),
     };
@@ -320,6 +435,72 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let text = serde_json::to_string_pretty(&report).expect("report serialises");
     std::fs::write(&path, text + "\n").map_err(|e| io_err(&path, e))?;
     Ok(report)
+}
+
+/// One calibration run: block size, diameter, duration (units of T), configuration, steps.
+struct Plan {
+    block_size: usize,
+    diameter: f64,
+    duration: f64,
+    cfg: Config,
+    steps: u64,
+}
+
+/// The statistics of one model on the campaign's samples.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelReport {
+    /// Shares within 10 %: `step_in_sample` (the paper's statistic), `step_held_out`,
+    /// `interval_in_sample`, `interval_held_out` (block shares of each interval's load,
+    /// leave-one-run-out), `interval_predictive` (held out, predicted at the interval's start) and
+    /// `interval_predictive_in_sample`.
+    pub share_within_10pct: BTreeMap<String, f64>,
+    /// Median of E_X per part (and `total`), in-sample.
+    pub median: BTreeMap<String, f64>,
+    /// MAD of E_X per part (and `total`), in-sample.
+    pub mad: BTreeMap<String, f64>,
+}
+
+impl ModelReport {
+    fn of(ev: &Evaluation, in_sample: &Scores, held: &Scores) -> Self {
+        let mut share = BTreeMap::new();
+        share.insert("step_in_sample".to_string(), in_sample.step.share());
+        share.insert("step_held_out".to_string(), held.step.share());
+        share.insert("interval_in_sample".to_string(), in_sample.interval.share());
+        share.insert("interval_held_out".to_string(), held.interval.share());
+        share.insert("interval_predictive".to_string(), held.predictive.share());
+        share.insert(
+            "interval_predictive_in_sample".to_string(),
+            in_sample.predictive.share(),
+        );
+        let mut median = BTreeMap::new();
+        let mut mad = BTreeMap::new();
+        for (k, v) in &ev.per_part {
+            median.insert(k.clone(), v.median);
+            mad.insert(k.clone(), v.mad);
+        }
+        median.insert("total".to_string(), ev.total.median);
+        mad.insert("total".to_string(), ev.total.mad);
+        ModelReport {
+            share_within_10pct: share,
+            median,
+            mad,
+        }
+    }
+}
+
+/// The timing noise floor (see [`estimator::NoiseFloor`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct NoiseReport {
+    /// Share of per-step samples within 10 % of their unchanged group's median.
+    pub step: f64,
+    /// Same for interval sums.
+    pub interval: f64,
+    /// Per-step samples in such groups.
+    pub step_samples: usize,
+    /// Interval sums in such groups.
+    pub interval_samples: usize,
+    /// Median relative MAD of m_tot within a group.
+    pub step_mad: f64,
 }
 
 /// What the campaign recorded: the samples, which blocks of each run never hold fluid, the runs, the
@@ -333,8 +514,8 @@ struct Campaign {
 }
 
 /// Runs every planned configuration (block size, diameter, configuration, steps) with a [`Sampler`].
-fn record(plans: &[(usize, f64, Config, u64)], duration: f64) -> Result<Campaign> {
-    let total: u64 = plans.iter().map(|p| p.3).sum();
+fn record(plans: &[Plan]) -> Result<Campaign> {
+    let total: u64 = plans.iter().map(|p| p.steps).sum();
     let bar = if std::io::stderr().is_terminal() {
         let b = ProgressBar::new(total);
         b.set_style(
@@ -351,10 +532,13 @@ fn record(plans: &[(usize, f64, Config, u64)], duration: f64) -> Result<Campaign
         runs: Vec::new(),
         fig6: Vec::new(),
         csv: String::from(
-            "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
+            "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,wall_links,particle_links,\
+             link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,contacts_seen,\
+             scanned,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
         ),
     };
-    for (r, (bs, d, cfg, steps)) in plans.iter().enumerate() {
+    for (r, p) in plans.iter().enumerate() {
+        let (bs, d, cfg, steps) = (&p.block_size, &p.diameter, &p.cfg, &p.steps);
         bar.set_message(format!("b_s = {bs}, D = {d}"));
         let ts = Instant::now();
         let scene = scenes::build(cfg)?;
@@ -378,7 +562,7 @@ fn record(plans: &[(usize, f64, Config, u64)], duration: f64) -> Result<Campaign
             run: r,
             block_size: *bs,
             diameter: *d,
-            t_unit: *steps as f64 / duration,
+            t_unit: *steps as f64 / p.duration,
             bar: bar.clone(),
             samples: Vec::new(),
             fig6: first,
@@ -410,9 +594,9 @@ fn record(plans: &[(usize, f64, Config, u64)], duration: f64) -> Result<Campaign
 
 /// Figures 6–8 (fluid cells and LBM time per block over time, the parts' shares m_X / m_tot, the errors
 /// E_X); returns the median share of every part.
-fn figures(out: &Path, c: &Campaign, coeffs: &Coefficients) -> Result<BTreeMap<String, f64>> {
+fn figures(out: &Path, c: &Campaign, samples: &[Sample], coeffs: &Coefficients) -> Result<BTreeMap<String, f64>> {
     let part_of = |m: &PartTimes, k: usize| m.as_array()[k];
-    let timed: Vec<&Sample> = c.samples.iter().filter(|s| s.m.total() > 0.0).collect();
+    let timed: Vec<&Sample> = samples.iter().filter(|s| s.m.total() > 0.0).collect();
     let mut shares = Vec::new();
     let mut errors = Vec::new();
     let mut share_median = BTreeMap::new();
@@ -437,23 +621,20 @@ fn figures(out: &Path, c: &Campaign, coeffs: &Coefficients) -> Result<BTreeMap<S
     Ok(share_median)
 }
 
-/// The report as Markdown: the coefficient table (the shape of Table 2), the error statistics and the
-/// shares within 10 %.
+/// The report as Markdown: the coefficient table of the written model (the shape of Table 2), its
+/// error statistics, and both models' shares within 10 % on the same samples next to the noise floor.
 pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
-    let mut s = String::from("Coefficients (eqs. 10-14; seconds per step)\n\n| part | a1 | a2 | a3 | a4 | a5 |\n|---|---:|---:|---:|---:|---:|\n");
-    let row = |name: &str, v: &[f64]| {
-        let mut l = format!("| {name} |");
-        for k in 0..5 {
-            l += &v.get(k).map_or(" |".to_string(), |x| format!(" {x:.3e} |"));
+    let mut s = format!(
+        "Coefficients ({} model; seconds per block and step)\n\n",
+        c.model.name()
+    );
+    s += "| part | term | coefficient |\n|---|---|---:|\n";
+    for (p, name) in estimator::PARTS.iter().enumerate() {
+        for (v, (key, meaning)) in c.parts[p].iter().zip(c.model.terms(p)) {
+            s += &format!("| {name} | {key} ({meaning}) | {v:.3e} |\n");
         }
-        l + "\n"
-    };
-    s += &row("LBM (C, F, 1)", &c.lbm);
-    s += &row("BH (C, NB, 1)", &c.bh);
-    s += &row("Coup1 (C, F, PL, PS, 1)", &c.coup1);
-    s += &row("Coup2 (C, F, PL, PS, 1)", &c.coup2);
-    s += &row("RB S·((PL+PS)², PL, PS, K, 1)", &c.rb);
-    s += "\nErrors E_X = (WL_X - m_X) / m_tot\n\n| part | median | MAD | median share of m_tot |\n|---|---:|---:|---:|\n";
+    }
+    s += "\nErrors E_X = (WL_X - m_X) / m_tot, per step, in-sample\n\n| part | median | MAD | median share of m_tot |\n|---|---:|---:|---:|\n";
     for (k, v) in &r.median {
         s += &format!(
             "| {k} | {:.2} % | {:.2} % | {} |\n",
@@ -464,15 +645,55 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
                 .map_or("".to_string(), |x| format!("{:.1} %", 100.0 * x))
         );
     }
-    s += "\nShare of samples with |E_tot| < 10 % (paper: over 85 %)\n\n";
-    for (k, v) in &r.share_within_10pct {
-        s += &format!("- {k}: {:.1} %\n", 100.0 * v);
+    s += &format!(
+        "\nShare within 10 % (paper, per step in-sample: over 85 %; interval = {} steps, as shares of the interval's total)\n\n",
+        r.interval
+    );
+    let keys = [
+        "step_in_sample",
+        "step_held_out",
+        "interval_in_sample",
+        "interval_held_out",
+        "interval_predictive",
+    ];
+    s += "| model |";
+    for k in keys {
+        s += &format!(" {k} |");
+    }
+    s += "\n|---|";
+    s += &"---:|".repeat(keys.len());
+    s += "\n";
+    let pct = |v: f64| {
+        if v.is_finite() {
+            format!("{:.1} %", 100.0 * v)
+        } else {
+            "-".into()
+        }
+    };
+    for (name, m) in &r.models {
+        s += &format!("| {name} |");
+        for k in keys {
+            s += &format!(" {} |", pct(m.share_within_10pct[k]));
+        }
+        s += "\n";
     }
     s += &format!(
-        "\n{} samples from {} runs in {:.0} s\n",
+        "| noise floor | {} | | | {} | |\n",
+        pct(r.noise_floor.step),
+        pct(r.noise_floor.interval)
+    );
+    s += &format!(
+        "\nnoise floor: unchanged blocks within 10 % of their own median ({} steps, {} interval sums; median relative MAD {:.1} %)\n",
+        r.noise_floor.step_samples,
+        r.noise_floor.interval_samples,
+        100.0 * r.noise_floor.step_mad
+    );
+    s += &format!(
+        "{} samples from {} runs in {:.0} s ({} samples of never-fluid blocks left out)\n",
         r.samples,
         r.runs.len(),
-        r.seconds
+        r.seconds,
+        r.never_fluid_samples
     );
     s
 }

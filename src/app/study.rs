@@ -39,11 +39,12 @@ pub struct StudyArgs {
     #[arg(long, default_value_t = 1)]
     pub threads_per_process: usize,
     /// Strategies, comma-separated: none, hilbert, morton, diffusive, metis, steal-global; a suffix
-    /// @cells, @estimator, @measured or @corrected sets the block weights of one (hilbert@estimator).
+    /// @cells, @estimator, @measured, @corrected or @uniform sets the block weights of one
+    /// (hilbert@estimator; none@uniform is the static split by block counts, the paper's start).
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "none,hilbert,morton,diffusive,metis,steal-global"
+        default_value = "none,none@uniform,hilbert,morton,diffusive,metis,steal-global"
     )]
     pub strategies: Vec<String>,
     /// Block weights of the rebalancing strategies: cells, estimator, measured, corrected
@@ -80,7 +81,7 @@ pub fn execute(a: StudyArgs) -> Result<()> {
         None => None,
         Some(w) => Some(parse_weights(&w).ok_or_else(|| {
             Error::Config(format!(
-                "--weights {w}: unknown; use cells, estimator, measured or corrected"
+                "--weights {w}: unknown; use cells, estimator, measured, corrected or uniform"
             ))
         })?),
     };
@@ -193,7 +194,7 @@ fn parse_name(name: &str) -> Option<(config::Strategy, Option<Weights>)> {
     Some((parse_strategy(base)?, weights))
 }
 
-/// `cells`, `estimator`, `measured` or `corrected`.
+/// `cells`, `estimator`, `measured`, `corrected` or `uniform`.
 pub fn parse_weights(w: &str) -> Option<Weights> {
     serde_json::from_value(serde_json::Value::String(w.to_string())).ok()
 }
@@ -226,8 +227,8 @@ pub fn study(opts: &StudyOptions) -> Result<StudyReport> {
     for s in &opts.strategies {
         if parse_name(s).is_none() {
             return Err(Error::Config(format!(
-                "--strategies: unknown strategy {s:?}; known: {} (optionally with @cells, @estimator, @measured \
-                 or @corrected for the block weights)",
+                "--strategies: unknown strategy {s:?}; known: {} (optionally with @cells, @estimator, @measured, \
+                 @corrected or @uniform for the block weights)",
                 STRATEGIES.join(", ")
             )));
         }
@@ -254,8 +255,9 @@ fn strategy_config(cfg: &Config, name: &str, processes: usize, threads: usize) -
     if let Some(w) = weights {
         c.balance.weights = w;
     }
-    if c.balance.strategy == config::Strategy::None {
-        // The paper's baseline: the static Hilbert split by fluid cells.
+    if c.balance.strategy == config::Strategy::None && weights.is_none() {
+        // The baseline: the static Hilbert split by fluid cells (`none@uniform`: by block counts, the
+        // paper's uniform start).
         c.balance.weights = Weights::Cells;
     }
     if name.starts_with("steal-global") {

@@ -96,6 +96,7 @@ impl Balancer {
     pub fn block_weights<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<f64> {
         match self.weights {
             Weights::Cells => weights::cells(sim),
+            Weights::Uniform => vec![1.0; sim.blocks.len()],
             Weights::Estimator => self.estimate(sim),
             Weights::Measured => crate::estimator::measured(block_load),
             Weights::Corrected => {

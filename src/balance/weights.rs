@@ -29,6 +29,7 @@ pub fn estimate<T: Real>(sim: &Simulation<T>, c: &Coefficients) -> Vec<f64> {
 pub fn initial<T: Real>(kind: Weights, sim: &Simulation<T>, coefficients: Option<&Coefficients>) -> Vec<f64> {
     match kind {
         Weights::Cells | Weights::Measured => cells(sim),
+        Weights::Uniform => vec![1.0; sim.blocks.len()],
         Weights::Estimator | Weights::Corrected => {
             estimate(sim, coefficients.expect("estimator weights have coefficients"))
         }

@@ -44,9 +44,10 @@ pub struct BalanceConfig {
     /// Steps per balancing / measurement interval.
     #[serde(default = "d_interval")]
     pub interval: u64,
-    /// Block weight: `"cells"` (fluid cells; default), `"estimator"` (eq. 15 with `balance.coefficients`),
-    /// `"measured"` (the block's m_tot over the last interval) or `"corrected"` (the estimate times the
-    /// smoothed measured/predicted ratio). With every strategy but `"none"` (which never moves a
+    /// Block weight: `"estimator"` (eq. 15 with `balance.coefficients`; default, the paper's method),
+    /// `"cells"` (fluid cells),
+    /// `"measured"` (the block's m_tot over the last interval), `"corrected"` (the estimate times the
+    /// smoothed measured/predicted ratio) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which never moves a
     /// block) the blocks are redistributed with these weights at the end of every interval.
     #[serde(default)]
     pub weights: Weights,
@@ -100,15 +101,18 @@ pub enum SplitKind {
 #[serde(rename_all = "lowercase")]
 pub enum Weights {
     /// Fluid cells (cells when the fluid is off).
-    #[default]
     Cells,
-    /// The workload estimate of eq. (15) from the block's Table 1 quantities.
+    /// The workload estimate of eq. (15) from the block's Table 1 quantities (the default: the
+    /// paper's method, with the built-in coefficients where the working folder has none).
+    #[default]
     Estimator,
     /// The block's own measured m_tot over the last interval (cells for the initial assignment).
     Measured,
     /// The estimate scaled by the block's smoothed measured/predicted ratio (section 3.5; see
     /// `estimator::weights`; the plain estimate for the initial assignment).
     Corrected,
+    /// Every block weighs 1: equal block counts per process (the paper's uniform initial split).
+    Uniform,
 }
 
 /// Default `balance.coefficients`: the file `blockflow calibrate` writes for this machine. Where the
@@ -148,7 +152,7 @@ impl Default for BalanceConfig {
         BalanceConfig {
             strategy: Strategy::None,
             interval: d_interval(),
-            weights: Weights::Cells,
+            weights: Weights::Estimator,
             coefficients: d_coefficients(),
             split: SplitKind::Greedy,
             flow_iterations: d_flow_iterations(),

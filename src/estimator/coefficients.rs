@@ -1,8 +1,11 @@
-//! The coefficients of eqs. (10)–(14), their evaluation (eq. 15) and the `coefficients.toml` format.
+//! The coefficients of the workload functions (eqs. 10–14 or this engine's form, [`Model`]), their
+//! evaluation (eq. 15) and the `coefficients.toml` format.
 //!
-//! Layout of the file (every key required except `provenance.fit_quality`; unknown keys are errors):
+//! Layout of the file (every key required except `model` and `provenance.fit_quality`; unknown keys
+//! are errors):
 //!
 //! ```toml
+//! model = "blockflow"         # or "paper" (the default when the key is missing)
 //! floor = 0.0                 # lower bound of every predicted part (seconds), ≥ 0
 //!
 //! [provenance]
@@ -13,28 +16,26 @@
 //! samples = 0                 # number of samples fitted
 //! note = "..."
 //!
-//! [provenance.fit_quality]    # optional: name = number, e.g. median_tot, mad_tot, share_within_10pct
+//! [provenance.fit_quality]    # optional: name = number, e.g. step_in_sample, interval_held_out
 //!
-//! [lbm]    # eq. (10): WL_LBM   = a1·C + a2·F + a3
-//! a1 = ...
-//! a2 = ...
-//! a3 = ...
-//! [bh]     # eq. (11): WL_BH    = a1·C + a2·NB + a3
-//! [coup1]  # eq. (12): WL_Coup1 = a1·C + a2·F + a3·P_L + a4·P_S + a5
-//! [coup2]  # eq. (13): WL_Coup2 = a1·C + a2·F + a3·P_L + a4·P_S + a5
-//! [rb]     # eq. (14): WL_RB    = S·(a1·(P_L+P_S)² + a2·P_L + a3·P_S + a4·K + a5)
+//! [lbm]    # one key per term of the model: paper a1 … a3 (eq. 10), blockflow fluid_cells, runs, active
+//! [bh]     # eq. (11) or its blockflow form
+//! [coup1]  # eq. (12)
+//! [coup2]  # eq. (13)
+//! [rb]     # eq. (14)
 //! ```
 //!
-//! A table with the wrong number of coefficients shows up as a missing key (`lbm: missing field `a3``)
-//! or an unknown one (`lbm.a4`); both are errors. [`Coefficients::to_toml`] writes every number in the
-//! shortest form that reads back to the same bits, so `parse(to_toml(c)) == c` bitwise.
+//! The keys of each table are the model's terms ([`Model::terms`]); a missing or unknown key is an
+//! error naming the table and the key. [`Coefficients::to_toml`] writes every number in the shortest
+//! form that reads back to the same bits, so `parse(to_toml(c)) == c` bitwise.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::Deserialize;
 
-use super::{row_bh, row_coup, row_lbm, row_rb, PartTimes, Quantities};
+use super::model::Model;
+use super::{PartTimes, Quantities, PARTS};
 use crate::error::{Error, Result};
 
 /// `configs/coefficients.toml` as it was when this binary was built: the coefficients a run uses when
@@ -56,53 +57,65 @@ pub struct Provenance {
     pub scenes: Vec<String>,
     /// Number of samples fitted.
     pub samples: usize,
-    /// Fit quality measures (section 3.4), e.g. `median_tot`, `mad_tot`, `share_within_10pct`.
+    /// Fit quality measures (section 3.4), e.g. `step_in_sample`, `interval_held_out`.
     #[serde(default)]
     pub fit_quality: BTreeMap<String, f64>,
     /// Free text.
     pub note: String,
 }
 
-/// Coefficients of eqs. (10)–(14) plus provenance. Index `i` of each array is the paper's a_{i+1,X}.
+/// Coefficients of the five workload functions of one [`Model`] plus provenance. `parts[p][j]`
+/// multiplies term j of part p ([`PARTS`] order; for the paper's model, the paper's a_{j+1,X}).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Coefficients {
-    /// Eq. (10): WL_LBM = a1·C + a2·F + a3.
-    pub lbm: [f64; 3],
-    /// Eq. (11): WL_BH = a1·C + a2·NB + a3.
-    pub bh: [f64; 3],
-    /// Eq. (12): WL_Coup1 = a1·C + a2·F + a3·P_L + a4·P_S + a5.
-    pub coup1: [f64; 5],
-    /// Eq. (13): WL_Coup2 = a1·C + a2·F + a3·P_L + a4·P_S + a5.
-    pub coup2: [f64; 5],
-    /// Eq. (14): WL_RB = S·(a1·(P_L+P_S)² + a2·P_L + a3·P_S + a4·K + a5).
-    pub rb: [f64; 5],
+    /// The form of the workload functions.
+    pub model: Model,
+    /// One coefficient per term of each part.
+    pub parts: [Vec<f64>; 5],
     /// Lower bound (≥ 0) of every predicted part; see [`Coefficients::predict`].
     pub floor: f64,
     /// Where the coefficients came from.
     pub provenance: Provenance,
 }
 
-fn dot<const N: usize>(a: &[f64; N], r: &[f64; N]) -> f64 {
-    a.iter().zip(r).map(|(a, r)| a * r).sum()
-}
-
 impl Coefficients {
-    /// Eqs. (10)–(14): predicted seconds per part for a block with quantities `q`, each part clamped
-    /// below at [`floor`](Coefficients::floor).
+    /// All-zero coefficients of `model` (what a fit without samples gives).
+    pub fn zeros(model: Model, provenance: Provenance) -> Self {
+        Coefficients {
+            model,
+            parts: std::array::from_fn(|p| vec![0.0; model.terms(p).len()]),
+            floor: 0.0,
+            provenance,
+        }
+    }
+
+    /// The coefficients of part `name` (one of [`PARTS`]).
+    pub fn part(&self, name: &str) -> &[f64] {
+        let p = PARTS.iter().position(|x| *x == name).expect("a part name");
+        &self.parts[p]
+    }
+
+    /// Predicted seconds of part `part` for quantities `q`, before the floor.
+    pub fn raw(&self, part: usize, q: &Quantities) -> f64 {
+        self.model.row(part, q).dot(&self.parts[part])
+    }
+
+    /// Eqs. (10)–(14) (or the model's form): predicted seconds per part for a block with quantities
+    /// `q`, each part clamped below at [`floor`](Coefficients::floor).
     ///
-    /// Why the floor: least squares puts no sign constraint on the coefficients and the intercepts come
-    /// out negative (Table 2: a3,LBM, a3,BH, a5,Coup1, a5,Coup2 < 0), so blocks with few fluid cells, no
-    /// boundary cells or no particles, above all empty blocks, get negative predictions. A negative weight
-    /// is no workload and breaks the partitioners (prefix sums of weights must not decrease), so each part
-    /// is at least `floor` ≥ 0.
+    /// Why the floor: the paper's form needs negative intercepts (Table 2: a3,LBM, a3,BH, a5,Coup1,
+    /// a5,Coup2 < 0), so blocks with few fluid cells, no boundary cells or no particles, above all empty
+    /// blocks, get negative predictions. A negative weight is no workload and breaks the partitioners
+    /// (prefix sums of weights must not decrease), so each part is at least `floor` ≥ 0. The
+    /// `blockflow` form is fitted with non-negative coefficients and never needs it.
     pub fn predict(&self, q: &Quantities) -> PartTimes {
-        let fl = |x: f64| x.max(self.floor);
+        let p: [f64; 5] = std::array::from_fn(|i| self.raw(i, q).max(self.floor));
         PartTimes {
-            lbm: fl(dot(&self.lbm, &row_lbm(q))),
-            bh: fl(dot(&self.bh, &row_bh(q))),
-            coup1: fl(dot(&self.coup1, &row_coup(q))),
-            coup2: fl(dot(&self.coup2, &row_coup(q))),
-            rb: fl(dot(&self.rb, &row_rb(q))),
+            lbm: p[0],
+            bh: p[1],
+            coup1: p[2],
+            coup2: p[3],
+            rb: p[4],
         }
     }
 
@@ -120,45 +133,76 @@ impl Coefficients {
         Self::parse(&text, &path.display().to_string())
     }
 
-    /// Parses coefficients text (named `origin` in messages) and checks it: every coefficient, the floor
-    /// and every fit-quality number finite, the floor ≥ 0.
+    /// Parses coefficients text (named `origin` in messages) and checks it: the model's keys in every
+    /// part table, every coefficient, the floor and every fit-quality number finite, the floor ≥ 0.
     pub fn parse(text: &str, origin: &str) -> Result<Self> {
-        let table = crate::config::parse_table(text, origin)?;
-        let file: File = serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
+        let fail = |m: String| Error::Config(format!("{origin}: {m}"));
+        let mut table = crate::config::parse_table(text, origin)?;
+        let model = match table.remove("model") {
+            None => Model::Paper,
+            Some(toml::Value::String(s)) => Model::parse(&s)
+                .ok_or_else(|| fail(format!("model = {s:?}: unknown; use \"paper\" or \"blockflow\"")))?,
+            Some(v) => return Err(fail(format!("model = {v}: must be \"paper\" or \"blockflow\""))),
+        };
+        let mut parts: [Vec<f64>; 5] = Default::default();
+        for (p, name) in PARTS.iter().enumerate() {
+            let t = match table.remove(*name) {
+                Some(toml::Value::Table(t)) => t,
+                Some(_) => return Err(fail(format!("{name}: must be a table"))),
+                None => return Err(fail(format!("missing table [{name}]"))),
+            };
+            let terms = model.terms(p);
+            for k in t.keys() {
+                if !terms.iter().any(|(key, _)| key == k) {
+                    let known: Vec<&str> = terms.iter().map(|t| t.0).collect();
+                    return Err(fail(format!(
+                        "{name}.{k}: unknown key for the {} model (known: {})",
+                        model.name(),
+                        known.join(", ")
+                    )));
+                }
+            }
+            for (key, _) in terms {
+                let v = match t.get(*key) {
+                    Some(toml::Value::Float(x)) => *x,
+                    Some(toml::Value::Integer(i)) => *i as f64,
+                    Some(v) => return Err(fail(format!("{name}.{key} = {v}: must be a number"))),
+                    None => return Err(fail(format!("{name}: missing key `{key}`"))),
+                };
+                parts[p].push(v);
+            }
+        }
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Rest {
+            floor: f64,
+            provenance: Provenance,
+        }
+        let rest: Rest = serde_path_to_error::deserialize(toml::Value::Table(table)).map_err(|e| {
             let path = e.path().to_string();
             let key = if path == "." {
                 String::new()
             } else {
                 format!("{path}: ")
             };
-            Error::Config(format!("{origin}: {key}{}", one_line(&e.inner().to_string())))
+            fail(format!("{key}{}", one_line(&e.inner().to_string())))
         })?;
         let c = Coefficients {
-            lbm: [file.lbm.a1, file.lbm.a2, file.lbm.a3],
-            bh: [file.bh.a1, file.bh.a2, file.bh.a3],
-            coup1: file.coup1.array(),
-            coup2: file.coup2.array(),
-            rb: file.rb.array(),
-            floor: file.floor,
-            provenance: file.provenance,
+            model,
+            parts,
+            floor: rest.floor,
+            provenance: rest.provenance,
         };
-        c.check().map_err(|m| Error::Config(format!("{origin}: {m}")))?;
+        c.check().map_err(fail)?;
         Ok(c)
     }
 
     /// Finite coefficients, finite non-negative floor, finite fit-quality numbers.
     fn check(&self) -> std::result::Result<(), String> {
-        let parts: [(&str, &[f64]); 5] = [
-            ("lbm", &self.lbm),
-            ("bh", &self.bh),
-            ("coup1", &self.coup1),
-            ("coup2", &self.coup2),
-            ("rb", &self.rb),
-        ];
-        for (name, a) in parts {
-            for (i, v) in a.iter().enumerate() {
+        for (p, name) in PARTS.iter().enumerate() {
+            for (v, (key, _)) in self.parts[p].iter().zip(self.model.terms(p)) {
                 if !v.is_finite() {
-                    return Err(format!("{name}.a{} = {v}: must be a finite number", i + 1));
+                    return Err(format!("{name}.{key} = {v}: must be a finite number"));
                 }
             }
         }
@@ -173,19 +217,20 @@ impl Coefficients {
         Ok(())
     }
 
-    /// Writes the coefficients file (layout in the module documentation), with a comment per table
-    /// naming the quantity each coefficient multiplies. Numbers are written in the shortest form that
+    /// Writes the coefficients file (layout in the module documentation), with a comment per
+    /// coefficient naming the quantity it multiplies. Numbers are written in the shortest form that
     /// reads back to the same bits.
     pub fn to_toml(&self) -> String {
         let p = &self.provenance;
         let mut s = String::new();
-        s.push_str(
-            "# Workload estimator coefficients, eqs. (10)-(14) of Rettinger & Ruede (2019); seconds per block\n",
-        );
-        s.push_str("# and step. Valid only for the machine and code named in [provenance] (section 3.5).\n\n");
-        s.push_str(
-            "# Lower bound of every predicted part (least squares may predict negative times for empty blocks).\n",
-        );
+        s.push_str(&format!(
+            "# Workload estimator coefficients ({} model; eqs. (10)-(14) of Rettinger & Ruede (2019) or this\n",
+            self.model.name()
+        ));
+        s.push_str("# engine's form of them); seconds per block and step. Valid only for the machine and code named\n");
+        s.push_str("# in [provenance] (section 3.5).\n\n");
+        s.push_str(&format!("model = {}\n", quote(self.model.name())));
+        s.push_str("# Lower bound of every predicted part.\n");
         s.push_str(&format!("floor = {}\n\n", num(self.floor)));
         s.push_str("[provenance]\n");
         s.push_str(&format!("machine = {}\n", quote(&p.machine)));
@@ -199,29 +244,17 @@ impl Coefficients {
         for (k, v) in &p.fit_quality {
             s.push_str(&format!("{} = {}\n", quote(k), num(*v)));
         }
-        let tables: [(&str, &str, &[f64]); 5] = [
-            ("lbm", "eq. (10): WL_LBM = a1*C + a2*F + a3", &self.lbm),
-            ("bh", "eq. (11): WL_BH = a1*C + a2*NB + a3", &self.bh),
-            (
-                "coup1",
-                "eq. (12): WL_Coup1 = a1*C + a2*F + a3*PL + a4*PS + a5",
-                &self.coup1,
-            ),
-            (
-                "coup2",
-                "eq. (13): WL_Coup2 = a1*C + a2*F + a3*PL + a4*PS + a5",
-                &self.coup2,
-            ),
-            (
-                "rb",
-                "eq. (14): WL_RB = S*(a1*(PL+PS)^2 + a2*PL + a3*PS + a4*K + a5)",
-                &self.rb,
-            ),
+        const EQ: [&str; 5] = [
+            "eq. (10), LBM",
+            "eq. (11), BH",
+            "eq. (12), Coup1",
+            "eq. (13), Coup2",
+            "eq. (14), RB",
         ];
-        for (name, comment, a) in tables {
-            s.push_str(&format!("\n# {comment}\n[{name}]\n"));
-            for (i, v) in a.iter().enumerate() {
-                s.push_str(&format!("a{} = {}\n", i + 1, num(*v)));
+        for (i, name) in PARTS.iter().enumerate() {
+            s.push_str(&format!("\n# {} ({} form)\n[{name}]\n", EQ[i], self.model.name()));
+            for (v, (key, meaning)) in self.parts[i].iter().zip(self.model.terms(i)) {
+                s.push_str(&format!("{key} = {} # {meaning}\n", num(*v)));
             }
         }
         s
@@ -264,43 +297,6 @@ fn one_line(s: &str) -> String {
     s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
-/// The file as read: named coefficients per part.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct File {
-    floor: f64,
-    provenance: Provenance,
-    lbm: Three,
-    bh: Three,
-    coup1: Five,
-    coup2: Five,
-    rb: Five,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Three {
-    a1: f64,
-    a2: f64,
-    a3: f64,
-}
-
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Five {
-    a1: f64,
-    a2: f64,
-    a3: f64,
-    a4: f64,
-    a5: f64,
-}
-
-impl Five {
-    fn array(&self) -> [f64; 5] {
-        [self.a1, self.a2, self.a3, self.a4, self.a5]
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -310,11 +306,14 @@ mod tests {
         fq.insert("median_tot".to_string(), -1.234_567_890_123_456_7e-3);
         fq.insert("share within \"10%\"".to_string(), 0.871);
         Coefficients {
-            lbm: [9.99e-6, 1.57e-4, -8.23e-2],
-            bh: [6.65e-6, 7.06e-4, -0.1 - 0.2],
-            coup1: [3.08e-6, 2.42e-7, 1.41e-2, 2.78e-2, -1.40e-1],
-            coup2: [1.0 / 3.0, f64::MIN_POSITIVE, -0.0, 1e300, 5e-324],
-            rb: [1.16e-6, 9.62e-4, 2.75e-4, 1.48e-3, std::f64::consts::PI],
+            model: Model::Paper,
+            parts: [
+                vec![9.99e-6, 1.57e-4, -8.23e-2],
+                vec![6.65e-6, 7.06e-4, -0.1 - 0.2],
+                vec![3.08e-6, 2.42e-7, 1.41e-2, 2.78e-2, -1.40e-1],
+                vec![1.0 / 3.0, f64::MIN_POSITIVE, -0.0, 1e300, 5e-324],
+                vec![1.16e-6, 9.62e-4, 2.75e-4, 1.48e-3, std::f64::consts::PI],
+            ],
             floor: 1e-9,
             provenance: Provenance {
                 machine: "test box\twith \\ tabs".into(),
@@ -329,12 +328,7 @@ mod tests {
     }
 
     fn bits(c: &Coefficients) -> Vec<u64> {
-        let mut v: Vec<f64> = Vec::new();
-        v.extend(c.lbm);
-        v.extend(c.bh);
-        v.extend(c.coup1);
-        v.extend(c.coup2);
-        v.extend(c.rb);
+        let mut v: Vec<f64> = c.parts.concat();
         v.push(c.floor);
         v.extend(c.provenance.fit_quality.values());
         v.iter().map(|x| x.to_bits()).collect()
@@ -349,14 +343,34 @@ mod tests {
         assert_eq!(back.provenance, c.provenance);
         assert_eq!(back.to_toml(), text);
         // -0.0 keeps its sign.
-        assert!(back.coup2[2].is_sign_negative());
+        assert!(back.parts[3][2].is_sign_negative());
+        // The blockflow form round-trips too, with its named keys.
+        let mut b = Coefficients::zeros(Model::Blockflow, c.provenance.clone());
+        for (p, v) in b.parts.iter_mut().enumerate() {
+            for (j, x) in v.iter_mut().enumerate() {
+                *x = (1 + p * 10 + j) as f64 * 1.1e-9;
+            }
+        }
+        let text = b.to_toml();
+        assert!(
+            text.contains("model = \"blockflow\"") && text.contains("contacts_seen = "),
+            "{text}"
+        );
+        let back = Coefficients::parse(&text, "mem").unwrap_or_else(|e| panic!("{e}\n{text}"));
+        assert_eq!(bits(&back), bits(&b));
+        assert_eq!(back.model, Model::Blockflow);
+        // A paper file is not a blockflow file.
+        let m = err(&text.replacen("model = \"blockflow\"", "model = \"paper\"", 1));
+        assert!(m.contains("lbm.") && m.contains("paper model"), "{m}");
+        let m = err(&text.replacen("model = \"blockflow\"", "model = \"fast\"", 1));
+        assert!(m.contains("model") && m.contains("fast"), "{m}");
     }
 
     #[test]
     fn predict_applies_eqs_10_to_14_and_clamps_at_the_floor() {
         let mut c = example();
-        c.coup2 = [1e-6, 2e-6, 3e-3, 4e-3, 5e-3];
-        c.rb = [1e-6, 2e-4, 3e-4, 4e-4, 5e-3];
+        c.parts[3] = vec![1e-6, 2e-6, 3e-3, 4e-3, 5e-3];
+        c.parts[4] = vec![1e-6, 2e-4, 3e-4, 4e-4, 5e-3];
         c.floor = 0.0;
         let q = Quantities {
             c: 32768.0,
@@ -366,6 +380,7 @@ mod tests {
             ps: 4.0,
             k: 5.0,
             s: 10.0,
+            ..Default::default()
         };
         let p = c.predict(&q);
         let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1e-300);
@@ -424,7 +439,7 @@ mod tests {
         assert!(Coefficients::parse(&good, "coef.toml").is_ok());
 
         // Missing coefficient (a table one short).
-        let m = err(&good.replacen("a3 = -8.23e-2\n", "", 1));
+        let m = err(&good.replacen("a3 = -8.23e-2 # 1\n", "", 1));
         assert!(m.contains("lbm") && m.contains("a3"), "{m}");
         // One coefficient too many.
         let m = err(&good.replacen("[bh]\n", "[bh]\na4 = 1.0\n", 1));
@@ -482,11 +497,12 @@ mod tests {
     fn paper_table2_example_file_parses() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/coefficients-paper-table2.toml");
         let c = Coefficients::load(&path).unwrap();
-        assert_eq!(c.lbm, [9.99e-6, 1.57e-4, -8.23e-2]);
-        assert_eq!(c.bh, [6.65e-6, 7.06e-4, -1.09e-1]);
-        assert_eq!(c.coup1, [3.08e-6, 2.42e-7, 1.41e-2, 2.78e-2, -1.40e-1]);
-        assert_eq!(c.coup2, [5.99e-6, 3.90e-6, -8.80e-3, 2.51e-2, -1.30e-1]);
-        assert_eq!(c.rb, [1.16e-6, 9.62e-4, 2.75e-4, 1.48e-3, 1.88e-2]);
+        assert_eq!(c.model, Model::Paper);
+        assert_eq!(c.part("lbm"), [9.99e-6, 1.57e-4, -8.23e-2]);
+        assert_eq!(c.part("bh"), [6.65e-6, 7.06e-4, -1.09e-1]);
+        assert_eq!(c.part("coup1"), [3.08e-6, 2.42e-7, 1.41e-2, 2.78e-2, -1.40e-1]);
+        assert_eq!(c.part("coup2"), [5.99e-6, 3.90e-6, -8.80e-3, 2.51e-2, -1.30e-1]);
+        assert_eq!(c.part("rb"), [1.16e-6, 9.62e-4, 2.75e-4, 1.48e-3, 1.88e-2]);
         assert!(c.provenance.machine.contains("SuperMUC"));
         assert!(c.provenance.note.contains("NOT"));
     }

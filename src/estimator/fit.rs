@@ -1,36 +1,114 @@
-//! Calibration (section 3.3–3.4): the coefficients of eqs. (10)–(14) by linear least squares, one
+//! Calibration (section 3.3–3.4): the coefficients of the workload functions by least squares, one
 //! problem per part, and leave-one-run-out validation.
 //!
-//! Every workload function is linear in its coefficients, so each part is an ordinary least-squares
-//! problem min ‖X a − m_X‖₂ over the samples, X's rows being the part's regressors (eq. 14: S·(P_L+P_S)²,
-//! S·P_L, S·P_S, S·K, S). The paper used SciPy's curve fitting; here nalgebra's SVD solves it. The columns
-//! of X are scaled to unit norm first (C ~ 10⁵ next to an intercept column of ones), and singular values
-//! below 10⁻¹² of the largest are dropped, so a column that never varies in the data (P_S always 0, a
-//! single block size making C collinear with the intercept) gives the minimum-norm solution instead of
-//! garbage.
+//! Every workload function is linear in its coefficients, so each part is a linear least-squares
+//! problem over the samples, X's rows being the part's regressors ([`Model::row`]; eq. 14: S·(P_L+P_S)²,
+//! S·P_L, S·P_S, S·K, S). What is minimised is what the statistic of section 3.4 measures: the error
+//! relative to the block's m_tot, min Σ ((x·a − m_X)/m_tot)², i.e. rows weighted by 1/m_tot (samples
+//! with m_tot ≤ 0 carry nothing and are left out). Where the model's coefficients are costs
+//! ([`Model::non_negative`]) the problem is solved with a ≥ 0 by the active-set method of Lawson and
+//! Hanson (1974, ch. 23); otherwise unconstrained, as the paper did with SciPy. Each least-squares
+//! solve uses nalgebra's SVD on the column-scaled matrix (columns of unit norm: C ~ 10⁵ next to a
+//! column of ones), dropping singular values below 10⁻¹² of the largest, so a column that never varies
+//! (P_S always 0, one block size making C collinear with the intercept) gives the minimum-norm solution.
 
 use nalgebra::{DMatrix, DVector};
 
-use super::stats::errors;
-use super::{evaluate, row, Coefficients, Provenance, Sample, PARTS};
+use super::stats::{score, Scores};
+use super::{evaluate, Coefficients, Model, Provenance, Sample};
 
 /// Relative threshold on singular values (of the column-scaled matrix) below which directions are dropped.
 const RCOND: f64 = 1e-12;
 
-/// Least-squares coefficients of part `part` (index into [`PARTS`]) over `samples`.
-fn fit_part(samples: &[Sample], part: usize) -> Vec<f64> {
-    let k = row(part, &Default::default()).len();
-    let n = samples.len();
-    if n == 0 {
+/// Minimum-norm least-squares solution of `x a = y` over the columns `cols` of `x` (others 0).
+fn solve_columns(x: &DMatrix<f64>, y: &DVector<f64>, cols: &[usize]) -> Vec<f64> {
+    let k = x.ncols();
+    let mut a = vec![0.0; k];
+    if cols.is_empty() {
+        return a;
+    }
+    let sub = x.select_columns(cols);
+    let svd = sub.clone().svd(true, true);
+    let smax = svd.singular_values.max();
+    if !(smax > 0.0 && smax.is_finite()) {
+        return a;
+    }
+    let solve = |rhs: &DVector<f64>| {
+        svd.solve(rhs, RCOND * smax)
+            .expect("U and Vᵀ were computed and the threshold is ≥ 0")
+    };
+    // One step of iterative refinement: the SVD's own rounding (its bidiagonalisation of a tall
+    // matrix whose rows span orders of magnitude) is removed by solving again for the residual.
+    let mut s = solve(y);
+    let r = y - &sub * &s;
+    s += solve(&r);
+    for (j, &c) in cols.iter().enumerate() {
+        a[c] = s[j];
+    }
+    a
+}
+
+/// Lawson–Hanson non-negative least squares: min ‖x a − y‖₂ subject to a ≥ 0.
+fn nnls(x: &DMatrix<f64>, y: &DVector<f64>) -> Vec<f64> {
+    let k = x.ncols();
+    let mut a = vec![0.0; k];
+    let mut passive = vec![false; k];
+    let tol = 1e-12 * x.norm() * y.norm();
+    for _outer in 0..3 * k + 3 {
+        // Gradient of −½‖x a − y‖²: w = xᵀ(y − x a).
+        let r = y - x * DVector::from_column_slice(&a);
+        let w = x.transpose() * r;
+        let Some(j) = (0..k)
+            .filter(|&j| !passive[j] && w[j] > tol)
+            .max_by(|&i, &j| w[i].total_cmp(&w[j]))
+        else {
+            break;
+        };
+        passive[j] = true;
+        for _inner in 0..3 * k + 3 {
+            let cols: Vec<usize> = (0..k).filter(|&i| passive[i]).collect();
+            let s = solve_columns(x, y, &cols);
+            if cols.iter().all(|&i| s[i] > 0.0) {
+                a = s;
+                break;
+            }
+            // Step from a towards s as far as feasibility allows, then release the coefficients at 0.
+            let alpha = cols
+                .iter()
+                .filter(|&&i| s[i] <= 0.0)
+                .map(|&i| a[i] / (a[i] - s[i]))
+                .fold(1.0f64, f64::min);
+            for i in 0..k {
+                a[i] += alpha * (s[i] - a[i]);
+                if passive[i] && a[i] <= 0.0 {
+                    a[i] = 0.0;
+                    passive[i] = false;
+                }
+            }
+        }
+    }
+    a
+}
+
+/// Coefficients of part `part` (index into [`PARTS`]) of `model` over `samples`, rows weighted by
+/// 1/m_tot.
+fn fit_part(samples: &[Sample], model: Model, part: usize) -> Vec<f64> {
+    let k = model.terms(part).len();
+    let rows: Vec<&Sample> = samples
+        .iter()
+        .filter(|s| s.m.total().is_finite() && s.m.total() > 0.0)
+        .collect();
+    if rows.is_empty() {
         return vec![0.0; k];
     }
-    let mut x = DMatrix::<f64>::zeros(n, k);
-    let mut y = DVector::<f64>::zeros(n);
-    for (i, s) in samples.iter().enumerate() {
-        for (j, v) in row(part, &s.q).into_iter().enumerate() {
-            x[(i, j)] = v;
+    let mut x = DMatrix::<f64>::zeros(rows.len(), k);
+    let mut y = DVector::<f64>::zeros(rows.len());
+    for (i, s) in rows.iter().enumerate() {
+        let w = 1.0 / s.m.total();
+        for (j, v) in model.row(part, &s.q).as_slice().iter().enumerate() {
+            x[(i, j)] = v * w;
         }
-        y[i] = s.m.as_array()[part];
+        y[i] = s.m.as_array()[part] * w;
     }
     let scale: Vec<f64> = (0..k)
         .map(|j| {
@@ -45,36 +123,24 @@ fn fit_part(samples: &[Sample], part: usize) -> Vec<f64> {
     for (j, sc) in scale.iter().enumerate() {
         x.column_mut(j).unscale_mut(*sc);
     }
-    let svd = x.svd(true, true);
-    let smax = svd.singular_values.max();
-    if !(smax > 0.0 && smax.is_finite()) {
-        return vec![0.0; k];
-    }
-    let a = svd
-        .solve(&y, RCOND * smax)
-        .expect("U and Vᵀ were computed and the threshold is ≥ 0");
+    let a = if model.non_negative() {
+        nnls(&x, &y)
+    } else {
+        solve_columns(&x, &y, &(0..k).collect::<Vec<_>>())
+    };
     (0..k).map(|j| a[j] / scale[j]).collect()
 }
 
-/// Fits eqs. (10)–(14) to `samples` by linear least squares per part (regressors as in the module
-/// documentation; eq. 14's factor S multiplied into every RB regressor, so runs with different S share
-/// one set of coefficients). Returns the coefficients with `floor` 0 and `provenance` completed:
-/// `samples` set to the number of samples, and `fit_quality` extended with the in-sample statistics of
-/// [`evaluate`] (`median_<part>`, `mad_<part>`, `median_tot`, `mad_tot`,
-/// `share_within_10pct`; non-finite values left out). With no samples every coefficient is 0.
-pub fn fit(samples: &[Sample], provenance: Provenance) -> Coefficients {
-    let a: Vec<Vec<f64>> = (0..PARTS.len()).map(|p| fit_part(samples, p)).collect();
-    let three = |v: &Vec<f64>| -> [f64; 3] { [v[0], v[1], v[2]] };
-    let five = |v: &Vec<f64>| -> [f64; 5] { [v[0], v[1], v[2], v[3], v[4]] };
-    let mut c = Coefficients {
-        lbm: three(&a[0]),
-        bh: three(&a[1]),
-        coup1: five(&a[2]),
-        coup2: five(&a[3]),
-        rb: five(&a[4]),
-        floor: 0.0,
-        provenance,
-    };
+/// Fits the five workload functions of `model` to `samples` (see the module documentation). Returns
+/// the coefficients with `floor` 0 and `provenance` completed: `samples` set to the number of samples,
+/// and `fit_quality` extended with the in-sample statistics of [`evaluate`] (`median_<part>`,
+/// `mad_<part>`, `median_tot`, `mad_tot`, `share_within_10pct`; non-finite values left out). With no
+/// samples every coefficient is 0.
+pub fn fit(samples: &[Sample], provenance: Provenance, model: Model) -> Coefficients {
+    let mut c = Coefficients::zeros(model, provenance);
+    for (p, part) in c.parts.iter_mut().enumerate() {
+        *part = fit_part(samples, model, p);
+    }
     c.provenance.samples = samples.len();
     let ev = evaluate(&c, samples);
     let mut q = Vec::new();
@@ -95,50 +161,36 @@ pub fn fit(samples: &[Sample], provenance: Provenance) -> Coefficients {
     c
 }
 
-/// Leave-one-run-out validation: for each distinct `run`, fits on all other runs and evaluates E_tot
-/// (section 3.4) on the left-out run. Returns the share of all held-out samples (with m_tot > 0) with
-/// |E_tot| < 0.1 — how well the estimator predicts a block size/diameter it was not fitted to. NaN with
-/// fewer than two distinct runs (nothing to hold out against) or no evaluable held-out sample.
-pub fn held_out(samples: &[Sample], provenance: Provenance) -> f64 {
+/// Leave-one-run-out validation: for each distinct `run`, fits `model` on all other runs and scores the
+/// left-out run with [`score`] (per step, per interval of `interval` steps, and predictively); returns
+/// the counts summed over the runs. Empty scores with fewer than two distinct runs (nothing to hold out
+/// against).
+pub fn cross_validate(samples: &[Sample], model: Model, interval: u64) -> Scores {
     let mut runs: Vec<usize> = samples.iter().map(|s| s.run).collect();
     runs.sort_unstable();
     runs.dedup();
+    let mut total = Scores::default();
     if runs.len() < 2 {
-        return f64::NAN;
+        return total;
     }
-    let (mut within, mut total) = (0usize, 0usize);
     for r in runs {
         let train: Vec<Sample> = samples.iter().filter(|s| s.run != r).copied().collect();
-        let c = fit(&train, provenance.clone());
-        for s in samples.iter().filter(|s| s.run == r) {
-            if let Some((_, e)) = errors(&c, s) {
-                total += 1;
-                within += usize::from(e.abs() < 0.1);
-            }
-        }
+        let test: Vec<Sample> = samples.iter().filter(|s| s.run == r).copied().collect();
+        let c = fit(&train, Provenance::default(), model);
+        total.add(&score(&c, &test, interval));
     }
-    if total == 0 {
-        f64::NAN
-    } else {
-        within as f64 / total as f64
-    }
+    total
 }
 
 #[cfg(test)]
 mod tests {
     use super::super::median;
     use super::super::testutil::{exact, synthetic, truth};
-    use super::super::{PartTimes, Quantities};
+    use super::super::{PartTimes, Quantities, PARTS};
     use super::*;
 
     fn arrays(c: &Coefficients) -> [(&'static str, Vec<f64>); 5] {
-        [
-            ("lbm", c.lbm.to_vec()),
-            ("bh", c.bh.to_vec()),
-            ("coup1", c.coup1.to_vec()),
-            ("coup2", c.coup2.to_vec()),
-            ("rb", c.rb.to_vec()),
-        ]
+        std::array::from_fn(|p| (PARTS[p], c.parts[p].clone()))
     }
 
     /// Largest relative error of any coefficient of `got` against `want`.
@@ -170,6 +222,7 @@ mod tests {
                 machine: "synthetic".into(),
                 ..Default::default()
             },
+            Model::Paper,
         );
         let (w, which) = worst(&c, &t);
         assert!(w < 1e-9, "worst relative coefficient error {w:e} ({which})");
@@ -195,7 +248,7 @@ mod tests {
         // intercepts, a few µs next to ms, can be off by several % of themselves).
         let t = truth();
         let samples = synthetic(&t, 20_000, 8, 0.01, 7);
-        let c = fit(&samples, Provenance::default());
+        let c = fit(&samples, Provenance::default(), Model::Paper);
         let mut dev: [Vec<f64>; 5] = Default::default();
         for s in &samples {
             let (p, e) = (c.predict(&s.q).as_array(), exact(&t, &s.q).as_array());
@@ -208,15 +261,24 @@ mod tests {
             assert!(med < 5e-4 && max < 1e-2, "{}: median {med:e}, max {max:e}", PARTS[i]);
         }
         let rel = |g: f64, w: f64| (g - w).abs() / w.abs();
-        for (g, w) in [(c.lbm[0], t.lbm[0]), (c.lbm[1], t.lbm[1]), (c.bh[1], t.bh[1])] {
+        for (g, w) in [
+            (c.parts[0][0], t.parts[0][0]),
+            (c.parts[0][1], t.parts[0][1]),
+            (c.parts[1][1], t.parts[1][1]),
+        ] {
             assert!(rel(g, w) < 0.02, "{g:e} vs {w:e}");
         }
-        for (g, w) in c.rb.iter().zip(&t.rb).skip(1) {
+        for (g, w) in c.parts[4].iter().zip(&t.parts[4]).skip(1) {
             assert!(rel(*g, *w) < 0.02, "{g:e} vs {w:e}");
         }
         for (p, (g, w)) in arrays(&c).into_iter().zip(arrays(&t)).enumerate() {
             let xmax: Vec<f64> = (0..w.1.len())
-                .map(|j| samples.iter().map(|s| row(p, &s.q)[j].abs()).fold(0.0, f64::max))
+                .map(|j| {
+                    samples
+                        .iter()
+                        .map(|s| c.model.row(p, &s.q).as_slice()[j].abs())
+                        .fold(0.0, f64::max)
+                })
                 .collect();
             let mmax = samples
                 .iter()
@@ -238,8 +300,8 @@ mod tests {
         // Only rigid-body time, S varying 1…20: the fit recovers a_RB and predictions scale with S.
         let t = truth();
         let samples = synthetic(&t, 3000, 4, 0.0, 99);
-        let c = fit(&samples, Provenance::default());
-        for (g, w) in c.rb.iter().zip(&t.rb) {
+        let c = fit(&samples, Provenance::default(), Model::Paper);
+        for (g, w) in c.parts[4].iter().zip(&t.parts[4]) {
             assert!((g - w).abs() <= 1e-9 * w.abs(), "{g:e} vs {w:e}");
         }
         let q = Quantities {
@@ -260,7 +322,7 @@ mod tests {
                 ..*s
             })
             .collect();
-        let cf = fit(&flat, Provenance::default());
+        let cf = fit(&flat, Provenance::default(), Model::Paper);
         let err = samples
             .iter()
             .map(|s| (cf.predict(&Quantities { s: 1.0, ..s.q }).rb - s.m.rb).abs() / s.m.rb);
@@ -282,7 +344,7 @@ mod tests {
                 }
             })
             .collect();
-        let c = fit(&samples, Provenance::default());
+        let c = fit(&samples, Provenance::default(), Model::Paper);
         for (_, a) in arrays(&c) {
             assert!(a.iter().all(|v| v.is_finite()));
         }
@@ -292,23 +354,23 @@ mod tests {
             assert!((p.total() - s.m.total()).abs() <= 1e-9 * s.m.total());
         }
         // The P_S coefficient, never seen, is (numerically) zero.
-        assert!(c.coup1[3].abs() < 1e-9 * t.coup1[3], "{:e}", c.coup1[3]);
+        assert!(c.parts[2][3].abs() < 1e-9 * t.parts[2][3], "{:e}", c.parts[2][3]);
         // No samples at all: zeros.
-        let z = fit(&[], Provenance::default());
-        assert_eq!(z.lbm, [0.0; 3]);
+        let z = fit(&[], Provenance::default(), Model::Paper);
+        assert_eq!(z.parts[0], [0.0; 3]);
         assert_eq!(z.provenance.samples, 0);
         assert!(z.provenance.fit_quality.is_empty());
     }
 
     #[test]
-    fn held_out_leaves_each_run_out() {
+    fn cross_validation_leaves_each_run_out() {
         let t = truth();
         let samples = synthetic(&t, 4000, 8, 0.01, 11);
-        let share = held_out(&samples, Provenance::default());
-        assert!(share > 0.99, "{share}");
+        let sc = cross_validate(&samples, Model::Paper, 10);
+        assert!(sc.step.share() > 0.99, "{sc:?}");
         // One run only: nothing to hold out against.
         let one: Vec<Sample> = samples.iter().filter(|s| s.run == 0).copied().collect();
-        assert!(held_out(&one, Provenance::default()).is_nan());
+        assert_eq!(cross_validate(&one, Model::Paper, 10).step.total, 0);
         // A run whose blocks behave differently (LBM 3× slower) is predicted badly when held out.
         let mut odd = samples.clone();
         for s in odd.iter_mut().filter(|s| s.run == 3) {
@@ -317,8 +379,66 @@ mod tests {
                 ..s.m
             };
         }
-        let share_odd = held_out(&odd, Provenance::default());
+        let share_odd = cross_validate(&odd, Model::Paper, 10).step.share();
         let run3 = odd.iter().filter(|s| s.run == 3).count() as f64 / odd.len() as f64;
         assert!(share_odd <= 1.0 - 0.9 * run3, "{share_odd}");
+    }
+
+    /// NNLS against a case solved by hand: y = 2·x1 − 1·x2 with x1, x2 positively correlated; the
+    /// constrained optimum drops x2 (its coefficient would be negative) and refits x1 alone:
+    /// a1 = (x1·y)/(x1·x1).
+    #[test]
+    fn nnls_drops_a_negative_direction_and_refits_the_rest() {
+        let x1 = [1.0, 2.0, 3.0, 4.0];
+        let x2 = [0.5, 0.4, 1.0, 1.5];
+        let y: Vec<f64> = (0..4).map(|i| 2.0 * x1[i] - x2[i]).collect();
+        let x = DMatrix::from_fn(4, 2, |i, j| if j == 0 { x1[i] } else { x2[i] });
+        let yv = DVector::from_vec(y.clone());
+        let a = nnls(&x, &yv);
+        let want = (0..4).map(|i| x1[i] * y[i]).sum::<f64>() / (0..4).map(|i| x1[i] * x1[i]).sum::<f64>();
+        assert_eq!(a[1], 0.0);
+        assert!((a[0] - want).abs() < 1e-12 * want, "{a:?} vs {want}");
+        // With a feasible optimum NNLS is plain least squares: y = 2·x1 + 3·x2 exactly.
+        let y: Vec<f64> = (0..4).map(|i| 2.0 * x1[i] + 3.0 * x2[i]).collect();
+        let a = nnls(&x, &DVector::from_vec(y));
+        assert!((a[0] - 2.0).abs() < 1e-12 && (a[1] - 3.0).abs() < 1e-12, "{a:?}");
+    }
+
+    /// The weights 1/m_tot: with two groups of samples whose best fits disagree, the weighted fit
+    /// follows the relative errors, so a small block is predicted as well as a big one.
+    #[test]
+    fn weighted_fit_minimises_relative_errors() {
+        // LBM time = 1e-8·F on small blocks but 1.2e-8·F on big ones; one coefficient (F) per model
+        // cannot fit both. Unweighted least squares would sit near the big blocks' 1.2e-8; the
+        // relative-error fit minimises Σ((a·F − m)/m)² = Σ(a/α_i − 1)², a = Σ(1/α)/Σ(1/α²) over
+        // the samples' α_i.
+        let mk = |f: f64, alpha: f64, i: usize| Sample {
+            run: 0,
+            step: i as u64,
+            block: 0,
+            q: Quantities {
+                c: f,
+                f,
+                ..Default::default()
+            },
+            m: PartTimes {
+                lbm: alpha * f,
+                ..Default::default()
+            },
+        };
+        let mut samples = Vec::new();
+        for i in 0..10 {
+            samples.push(mk(100.0, 1e-8, i));
+            samples.push(mk(100_000.0, 1.2e-8, i));
+        }
+        let c = fit(&samples, Provenance::default(), Model::Blockflow);
+        let (a1, a2) = (1.0 / 1e-8, 1.0 / 1.2e-8);
+        let want = (a1 + a2) / (a1 * a1 + a2 * a2);
+        // Blockflow LBM terms: F, runs (0 here), [F > 0]; the constant term is set to 0 by the
+        // non-negative fit only if it does not help, so compare predictions, not coefficients.
+        let p_small = c.predict(&samples[0].q).lbm / samples[0].m.lbm;
+        let p_big = c.predict(&samples[1].q).lbm / samples[1].m.lbm;
+        assert!((p_big - want / 1.2e-8).abs() < 0.02, "{p_small} {p_big} {want:e}");
+        assert!(c.parts.iter().flatten().all(|&a| a >= 0.0), "{:?}", c.parts);
     }
 }

@@ -1,9 +1,11 @@
-//! The Table 1 quantities of a block, as this engine counts them.
+//! The Table 1 quantities of a block, as this engine counts them, and the work counters of its tasks
+//! that the `blockflow` model of the estimator regresses on.
 
 use crate::physics::simulation::Simulation;
 use blockflow_kernels::Real;
 
-/// Table 1 quantities of one block in one step (all f64, so that they enter the regressions directly).
+/// Table 1 quantities of one block in one step, plus what this engine's tasks did in it (all f64, so
+/// that they enter the regressions directly).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Quantities {
     /// C: total number of cells on the block (eqs. 10–13).
@@ -16,29 +18,90 @@ pub struct Quantities {
     pub pl: f64,
     /// P_S: number of shadow particles (eqs. 12–14).
     pub ps: f64,
-    /// K: number of contacts between rigid bodies (eq. 14).
+    /// K: number of contacts between rigid bodies (eq. 14), owned by the block, per sub-step.
     pub k: f64,
     /// S: number of sub-cycles of the rigid-body simulation (the factor of eq. 14).
     pub s: f64,
+    /// Runs of fluid cells the fluid kernel updates (each run costs a row set-up).
+    #[serde(default)]
+    pub runs: f64,
+    /// Bounce-back links at walls (resting and moving).
+    #[serde(default)]
+    pub wall_links: f64,
+    /// Links from fluid cells into particle cells (each gets δ_q and the momentum exchange).
+    #[serde(default)]
+    pub particle_links: f64,
+    /// Fluid cells with at least one particle link (the link lists' entries).
+    #[serde(default)]
+    pub link_cells: f64,
+    /// 1 when the mapping ran beyond its fast path (a body near before or now), else 0.
+    #[serde(default)]
+    pub map_active: f64,
+    /// Bodies the mapping wrote (locals and shadows).
+    #[serde(default)]
+    pub map_bodies: f64,
+    /// Bounding-box cells the mapping visited.
+    #[serde(default)]
+    pub box_cells: f64,
+    /// Rows the mapping derived again (not copied from the previous mapping).
+    #[serde(default)]
+    pub rows_derived: f64,
+    /// Cells turned from solid to fluid (reconstructed) in the step.
+    #[serde(default)]
+    pub turned: f64,
+    /// Cells covered by a body in the step.
+    #[serde(default)]
+    pub covered: f64,
+    /// 1 when the block ran rigid-body tasks in the step, else 0.
+    #[serde(default)]
+    pub rb_active: f64,
+    /// Contacts the block's rigid-body task solved (its own and those among its shadows: the contacts
+    /// it *sees*, the paper's K), per sub-step.
+    #[serde(default)]
+    pub contacts_seen: f64,
+    /// Entries of the neighbours' published lists read to gather locals and shadows, per sub-step.
+    #[serde(default)]
+    pub scanned: f64,
 }
 
 impl Quantities {
-    /// The quantities of block `b` of `sim` after the last step: C, F, NB from the block and its particle
-    /// overlay, P_L and P_S from the block's last rigid-body sub-step, K the contacts it owned averaged
-    /// over the step's sub-steps, S the sub-steps (0 for a block without rigid-body tasks). Call between
-    /// graph runs.
+    /// The quantities of block `b` of `sim` after the last step: C, F, NB, the fluid runs and links
+    /// from the block and its particle overlay, the mapping's counters from the last mapping (0 where the
+    /// block had no particle tasks), P_L and
+    /// P_S from the block's last rigid-body sub-step, K, the contacts seen and the list entries scanned
+    /// averaged over the step's sub-steps, S the sub-steps (0 for a block without rigid-body tasks).
+    /// Call between graph runs.
     pub fn of<T: Real>(sim: &Simulation<T>, b: usize) -> Quantities {
         let blk = &sim.blocks[b];
-        let (f, nb) = match blk.particle_cells() {
-            Some(pc) => (pc.fluid_cells, pc.near_boundary_cells),
-            None => (blk.fluid_cells, blk.near_boundary_cells),
-        };
         let mut q = Quantities {
             c: blk.layout.interior_cells() as f64,
-            f: f as f64,
-            nb: nb as f64,
+            wall_links: (blk.links.noslip.len() + blk.links.moving.len()) as f64,
             ..Default::default()
         };
+        match blk.particle_cells() {
+            Some(pc) => {
+                q.f = pc.fluid_cells as f64;
+                q.nb = pc.near_boundary_cells as f64;
+                q.runs = pc.segments.len() as f64;
+                q.link_cells = pc.link_cells.len() as f64;
+                q.particle_links = pc.link_cells.iter().map(|l| l.dirs.count_ones() as f64).sum();
+                // The mapping ran in the last step only where the block was active (else the overlay
+                // is the one of an earlier step, or of the set-up).
+                if sim.particles.as_ref().is_some_and(|p| p.active[b]) {
+                    q.map_active = f64::from(u8::from(pc.map_work.active));
+                    q.map_bodies = pc.bodies.len() as f64;
+                    q.box_cells = pc.map_work.box_cells as f64;
+                    q.rows_derived = pc.map_work.rows_derived as f64;
+                    q.turned = pc.turned.len() as f64;
+                    q.covered = pc.covered.len() as f64;
+                }
+            }
+            None => {
+                q.f = blk.fluid_cells as f64;
+                q.nb = blk.near_boundary_cells as f64;
+                q.runs = blk.segments.len() as f64;
+            }
+        }
         if let Some(p) = sim.particles.as_ref().filter(|p| p.active[b]) {
             // SAFETY: called between graph runs.
             let w = unsafe { p.blocks[b].work() };
@@ -46,7 +109,10 @@ impl Quantities {
             q.pl = w.locals as f64;
             q.ps = (w.bodies.len() - w.locals) as f64;
             q.k = w.contacts_step as f64 / s;
+            q.contacts_seen = w.seen_step as f64 / s;
+            q.scanned = w.scanned_step as f64 / s;
             q.s = s;
+            q.rb_active = 1.0;
         }
         q
     }

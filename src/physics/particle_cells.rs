@@ -82,6 +82,18 @@ pub struct BodyForce {
     pub torque: DVec3,
 }
 
+/// What the last mapping of a block did (regressors of the workload estimator's mapping part; no
+/// effect on the overlay).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MapWork {
+    /// Whether the mapping ran beyond its fast path (a body was near before or is near now).
+    pub active: bool,
+    /// Cells of the bodies' bounding boxes visited while writing owners (every periodic image).
+    pub box_cells: u64,
+    /// Interior rows derived again (the others were copied from the previous mapping).
+    pub rows_derived: u64,
+}
+
 /// The particle overlay of one block.
 #[derive(Clone, Debug, Default)]
 pub struct ParticleCells {
@@ -124,6 +136,8 @@ pub struct ParticleCells {
     pub exchanged: Vec<BodyForce>,
     /// Forces of the last boundary pass, sorted by id.
     pub forces: Vec<BodyForce>,
+    /// What the last mapping did.
+    pub map_work: MapWork,
 }
 
 impl ParticleCells {

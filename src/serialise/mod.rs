@@ -47,7 +47,8 @@
 //!   sub-step looks for it). Each body lives in exactly one block's list, so the lists of all blocks
 //!   together are all bodies.
 //! - `particle_state` (with particles): the block's last rigid-body result ([`Work`]): local and shadow
-//!   bodies, velocity changes, and the contact counters (K of Table 1, statistics for the summary).
+//!   bodies, velocity changes, and the contact and gather counters (K and the rigid-body regressors of the
+//!   estimator, statistics for the summary).
 //!
 //! Not carried, on purpose: the ghost layers and the other PDF field (rewritten before they are read;
 //! the continuation tests prove it bitwise), the static block structure (segments, wall links, receive lists,
@@ -67,7 +68,7 @@ pub use read::decode_block;
 pub use write::{encode_block, encoded_len};
 
 /// Version of the block format written by [`encode_block`]; the decoder accepts only this one.
-pub const BLOCK_FORMAT_VERSION: u32 = 2;
+pub const BLOCK_FORMAT_VERSION: u32 = 3;
 /// First bytes of every encoded block.
 pub const MAGIC: [u8; 5] = *b"BFBLK";
 /// Bytes of the fixed header (before the section table).

@@ -4,7 +4,7 @@ use super::{
     checksum, peek_header, FormatError, BODIES, BODY_BYTES, BODY_FORCE_BYTES, FLAGS, HEADER_LEN, OVERLAY,
     PARTICLE_STATE, PDF,
 };
-use crate::physics::particle_cells::{BodyForce, LinkCell, MapBody, ParticleCells};
+use crate::physics::particle_cells::{BodyForce, LinkCell, MapBody, MapWork, ParticleCells};
 use crate::physics::particles::{Delta, Published, Work};
 use crate::physics::simulation::Simulation;
 use crate::util::bytes::{ReadError, Reader};
@@ -186,6 +186,11 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
             list.push(r.body_force()?);
         }
     }
+    pc.map_work = MapWork {
+        active: r.bool()?,
+        box_cells: r.u64()?,
+        rows_derived: r.u64()?,
+    };
     r.finish()?;
     Ok(pc)
 }
@@ -238,6 +243,8 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         contacts_total: r.u64()?,
         max_penetration_total: r.f64()?,
         contacts_step: r.u64()?,
+        seen_step: r.u64()?,
+        scanned_step: r.u64()?,
     };
     r.finish()?;
     Ok(w)

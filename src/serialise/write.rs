@@ -164,6 +164,9 @@ fn write_overlay(s: &mut impl Sink, l: &Layout, pc: &ParticleCells) {
             put_body_force(s, f);
         }
     }
+    put_u8(s, pc.map_work.active as u8);
+    put_u64(s, pc.map_work.box_cells);
+    put_u64(s, pc.map_work.rows_derived);
 }
 
 fn write_bodies(s: &mut impl Sink, list: &Published) {
@@ -192,6 +195,8 @@ fn write_work(s: &mut impl Sink, w: &Work) {
     put_u64(s, w.contacts_total);
     put_f64(s, w.max_penetration_total);
     put_u64(s, w.contacts_step);
+    put_u64(s, w.seen_step);
+    put_u64(s, w.scanned_step);
 }
 
 /// The sections block `id` of `sim` has, in the order they are written.

@@ -115,5 +115,6 @@ fn weights_name(w: Weights) -> &'static str {
         Weights::Estimator => "estimator",
         Weights::Measured => "measured",
         Weights::Corrected => "corrected",
+        Weights::Uniform => "uniform",
     }
 }

@@ -13,7 +13,7 @@ use super::rows::{bit_cells, interior_mask, CellBits};
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
 use crate::physics::geometry::flags;
-use crate::physics::particle_cells::{LinkCell, MapBody, ParticleCells, RowIndex, StaticRows};
+use crate::physics::particle_cells::{LinkCell, MapBody, MapWork, ParticleCells, RowIndex, StaticRows};
 use blockflow_kernels::d3q19::{C, Q};
 use blockflow_kernels::sweep::Segment;
 use blockflow_kernels::Real;
@@ -47,6 +47,7 @@ pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, b
         pc.covered.clear();
         pc.bodies.clear();
         pc.row_index.valid = false;
+        pc.map_work = MapWork::default();
         return;
     }
     if !pc.statics.fluid.fits(full) {
@@ -69,12 +70,18 @@ pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, b
     } else {
         occ = CellBits::new(full);
     }
+    let mut box_cells = 0;
     for body in &bodies {
-        fill_sphere(d, b, &pc.statics, body, &mut owner, &mut occ);
+        box_cells += fill_sphere(d, b, &pc.statics, body, &mut owner, &mut occ);
     }
     pc.owner = owner;
     pc.owned = occ.any();
-    rows(b, pc, &old, if first { None } else { Some(&old_occ) }, &occ, shortcuts);
+    let rows_derived = rows(b, pc, &old, if first { None } else { Some(&old_occ) }, &occ, shortcuts);
+    pc.map_work = MapWork {
+        active: true,
+        box_cells,
+        rows_derived,
+    };
     pc.occupied = occ;
     pc.bodies = bodies;
     let mut spare = old;
@@ -84,7 +91,8 @@ pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, b
 }
 
 /// Writes `body` into the owners of every static fluid cell (`statics.fluid`) its sphere covers (any
-/// periodic image whose bounding box meets the block with its ghost layer).
+/// periodic image whose bounding box meets the block with its ghost layer); returns the number of
+/// bounding-box cells visited.
 fn fill_sphere<T: Real>(
     d: &DomainSpec,
     b: &Block<T>,
@@ -92,9 +100,10 @@ fn fill_sphere<T: Real>(
     body: &MapBody,
     owner: &mut [u64],
     occ: &mut CellBits,
-) {
+) -> u64 {
     let l = b.layout;
     let cells = d.cells();
+    let mut visited = 0u64;
     let mut ranges = [[(0i64, -1i64); 3]; 3];
     for a in 0..3 {
         let shifts: &[f64] = if d.periodic[a] { &[-1.0, 0.0, 1.0] } else { &[0.0] };
@@ -116,6 +125,7 @@ fn fill_sphere<T: Real>(
     for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
         for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
             for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
+                visited += ((rx.1 - rx.0 + 1) * (ry.1 - ry.0 + 1) * (rz.1 - rz.0 + 1)) as u64;
                 let ox: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).collect();
                 let ox2: Vec<f64> = ox.iter().map(|o| o * o).collect();
                 // Along one image's range the offset grows with x, so the cells of a row inside the
@@ -172,6 +182,7 @@ fn fill_sphere<T: Real>(
             }
         }
     }
+    visited
 }
 
 /// The covered cells of an owner array as bit rows.
@@ -235,7 +246,8 @@ fn static_rows<T: Real>(b: &Block<T>) -> StaticRows {
 ///
 /// A row's results depend only on the covered cells of the row and of its eight neighbour rows (in y
 /// and z; x shifts stay inside a row). With `reuse`, a row whose neighbourhood is covered as in the
-/// previous mapping takes its entries from the previous lists, found through the row index.
+/// previous mapping takes its entries from the previous lists, found through the row index. Returns
+/// the number of rows derived (not copied).
 fn rows<T: Real>(
     b: &Block<T>,
     pc: &mut ParticleCells,
@@ -243,10 +255,11 @@ fn rows<T: Real>(
     old_occ: Option<&CellBits>,
     occ: &CellBits,
     reuse: bool,
-) {
+) -> u64 {
     let l = b.layout;
     let [fx, fy, fz] = l.full();
     let n_rows = (fy - 2) * (fz - 2);
+    let mut derived = 0u64;
     let reusable = reuse && pc.row_index.valid && pc.row_index.counts.len() == n_rows;
     // Rows (ghost layer included) whose covered cells changed since the previous mapping.
     let changed: Vec<bool> = match old_occ {
@@ -298,6 +311,7 @@ fn rows<T: Real>(
                     first..row,
                 );
             }
+            derived += 1;
             index.segments.push(pc.segments.len() as u32);
             index.link_cells.push(pc.link_cells.len() as u32);
             // Fluid cells, near-boundary cells and cells with a particle link of this row.
@@ -383,6 +397,7 @@ fn rows<T: Real>(
     pc.spare.segments = prev_segments;
     pc.spare.link_cells = prev_links;
     pc.spare.index = prev_index;
+    derived
 }
 
 /// Appends the entries of the previous mapping's `rows` (consecutive interior rows) to the new lists and

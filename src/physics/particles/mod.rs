@@ -89,6 +89,12 @@ pub struct Work {
     pub max_penetration_total: f64,
     /// Owned contacts summed over the sub-steps of the current (or last finished) step.
     pub contacts_step: u64,
+    /// Contacts the block solved (owned and among its shadows: the contacts it *sees*), summed over the
+    /// sub-steps of the current (or last finished) step.
+    pub seen_step: u64,
+    /// Entries of the neighbours' published lists read while gathering locals and shadows, summed over
+    /// the sub-steps of the current (or last finished) step.
+    pub scanned_step: u64,
 }
 
 /// Rigid-body state of one block.

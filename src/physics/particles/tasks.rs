@@ -37,8 +37,10 @@ impl Particles {
         // from its block's first entry), every copy within the halo but the unshifted one of a local is a
         // shadow; locals sorted by id, shadows by (id, neighbour), so the order does not depend on the pass.
         let mut shadows = Vec::new();
+        let mut scanned = 0u64;
         for (k, nb) in blk.neighbours.iter().enumerate() {
             let pb = self.blocks[nb.block].published(prev);
+            scanned += pb.bodies.len() as u64;
             let unshifted = nb.shift == glam::DVec3::ZERO;
             for (body, &h) in pb.bodies.iter().zip(&pb.homes) {
                 let local = h as usize == b;
@@ -68,7 +70,10 @@ impl Particles {
         w.max_penetration = 0.0;
         if (g - 1).is_multiple_of(self.subcycles as u64) {
             w.contacts_step = 0;
+            w.seen_step = 0;
+            w.scanned_step = 0;
         }
+        w.scanned_step += scanned;
         if w.bodies.is_empty() {
             return;
         }
@@ -77,6 +82,7 @@ impl Particles {
         let bodies = &w.bodies;
         // A body never touches its own periodic image.
         contacts.retain(|c| c.b.is_none_or(|o| bodies[o].id != bodies[c.a].id));
+        w.seen_step += contacts.len() as u64;
         // Solve every contact the block sees (its own and, as context, those among its shadows), so the
         // impulses of the owned ones account for the load the neighbourhood puts on them.
         let mut impulses = Vec::new();
