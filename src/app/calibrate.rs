@@ -2,7 +2,8 @@
 //! for every block size and diameter, drops the first 50 steps, records one sample per block per step
 //! (the Table 1 quantities, the tasks' work counters and the measured part times m_X from the task
 //! records' thread CPU time), fits both forms of the workload functions ([`Model`]) by weighted least
-//! squares on the same samples, and reports for each the statistics of section 3.4 per step and per
+//! squares on the same samples summed per block over balancing intervals (`--interval`: the loads the
+//! balancer's weights stand for), and reports for each the statistics of section 3.4 per step and per
 //! balancing interval, in-sample and held out (fit without one run, test on it), and the timing noise
 //! floor. The chosen model's coefficients go to `coefficients.toml`.
 //!
@@ -50,6 +51,9 @@ pub struct CalibrateArgs {
     /// Steps of a balancing interval for the per-interval statistics.
     #[arg(long, default_value_t = 100)]
     pub interval: u64,
+    /// Fit and score the samples of an earlier campaign (its samples.csv) instead of running one.
+    #[arg(long, value_name = "SAMPLES_CSV")]
+    pub samples: Option<PathBuf>,
     /// The paper's sizes (block sizes 24, 32, 48, 64; D = 10, 20; 2.5 T), for big machines.
     #[arg(long, conflicts_with = "quick")]
     pub paper: bool,
@@ -82,6 +86,7 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
         paper: a.paper,
         model,
         interval: a.interval,
+        samples: a.samples,
         out: a.out.clone(),
     };
     let report = run(&opts)?;
@@ -108,6 +113,8 @@ pub struct CalibrateOptions {
     pub model: Model,
     /// Steps of a balancing interval (per-interval statistics).
     pub interval: u64,
+    /// A recorded samples.csv to refit instead of running the campaign.
+    pub samples: Option<PathBuf>,
     /// Output folder.
     pub out: PathBuf,
 }
@@ -337,6 +344,35 @@ fn today() -> String {
 pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let t0 = Instant::now();
     std::fs::create_dir_all(&o.out).map_err(|e| io_err(&o.out, e))?;
+    let (c, scenes, origin) = match &o.samples {
+        Some(path) => {
+            let c = read_samples(path)?;
+            let scenes = c
+                .runs
+                .iter()
+                .map(|r| format!("{} with b_s = {}, D = {}", o.scene.display(), r.block_size, r.diameter))
+                .collect();
+            (c, scenes, format!("refit of {}", path.display()))
+        }
+        None => {
+            let (c, scenes) = campaign(o)?;
+            (c, scenes, String::from("blockflow calibrate"))
+        }
+    };
+    if c.samples.is_empty() {
+        return Err(Error::Config(format!(
+            "calibrate: no samples (every run is shorter than the {WARMUP}-step warm-up); raise scene.duration"
+        )));
+    }
+    if o.samples.is_none() {
+        let path = o.out.join("samples.csv");
+        std::fs::write(&path, &c.csv).map_err(|e| io_err(&path, e))?;
+    }
+    fit_and_report(o, &c, scenes, &origin, t0)
+}
+
+/// Runs the campaign of `o`; returns it and a description of every run.
+fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
     // Build every configuration first: bad input fails before any run, and the bar knows the total.
     let mut plans = Vec::new();
     for (bs, d, duration) in preset(o) {
@@ -351,13 +387,23 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
         });
     }
     let c = record(&plans)?;
-    if c.samples.is_empty() {
-        return Err(Error::Config(format!(
-            "calibrate: no samples (every run is shorter than the {WARMUP}-step warm-up); raise scene.duration"
-        )));
-    }
-    let path = o.out.join("samples.csv");
-    std::fs::write(&path, &c.csv).map_err(|e| io_err(&path, e))?;
+    let scenes = plans
+        .iter()
+        .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.block_size, p.diameter))
+        .collect();
+    Ok((c, scenes))
+}
+
+/// Fits both models to the campaign's samples, scores them, writes `coefficients.toml`,
+/// `calibration.json` and figures 6–8.
+fn fit_and_report(
+    o: &CalibrateOptions,
+    c: &Campaign,
+    scenes: Vec<String>,
+    origin: &str,
+    t0: Instant,
+) -> Result<CalibrationReport> {
+    let n_runs = scenes.len();
     // Never-fluid blocks are out of the fit and of every statistic (module documentation).
     let fluid: Vec<Sample> = c
         .samples
@@ -369,16 +415,14 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
         machine: machine(),
         date: today(),
         commit: git_commit(),
-        scenes: plans
-            .iter()
-            .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.block_size, p.diameter))
-            .collect(),
+        scenes,
         samples: fluid.len(),
         fit_quality: BTreeMap::new(),
         note: format!(
-            "blockflow calibrate: {} runs, first {WARMUP} steps of each dropped, one sample per block per step; \
-             blocks that never hold fluid left out; weighted (1/m_tot) least squares{}",
-            plans.len(),
+            "{origin}: {} runs, first {WARMUP} steps of each dropped, one sample per block per step; \
+             blocks that never hold fluid left out; weighted (1/m_tot) least squares over sums of {} steps per block{}",
+            n_runs,
+            o.interval,
             if o.model.non_negative() {
                 ", coefficients >= 0"
             } else {
@@ -389,7 +433,7 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let mut models = BTreeMap::new();
     let mut chosen = None;
     for model in [Model::Paper, Model::Blockflow] {
-        let coeffs = estimator::fit(&fluid, prov.clone(), model);
+        let coeffs = estimator::fit(&fluid, prov.clone(), model, o.interval);
         let ev: Evaluation = estimator::evaluate(&coeffs, &fluid);
         let in_sample = estimator::score(&coeffs, &fluid, o.interval);
         let held = estimator::cross_validate(&fluid, model, o.interval);
@@ -409,10 +453,10 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
         .collect();
     let path = o.out.join("coefficients.toml");
     std::fs::write(&path, coeffs.to_toml()).map_err(|e| io_err(&path, e))?;
-    let share_median = figures(&o.out, &c, &fluid, &coeffs)?;
+    let share_median = figures(&o.out, c, &fluid, &coeffs)?;
     let noise = estimator::noise_floor(&fluid, o.interval);
     let report = CalibrationReport {
-        runs: c.runs,
+        runs: c.runs.clone(),
         samples: fluid.len(),
         never_fluid_samples: c.samples.len() - fluid.len(),
         interval: o.interval,
@@ -696,4 +740,150 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         r.never_fluid_samples
     );
     s
+}
+
+/// Reads the samples of an earlier campaign from its `samples.csv` (the columns [`record`] writes):
+/// the samples, the runs, which blocks never held fluid (F = 0 in every sample of the run) and the
+/// first run's figure 6 series.
+fn read_samples(path: &Path) -> Result<Campaign> {
+    let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let col = |name: &str| {
+        header.iter().position(|h| *h == name).ok_or_else(|| {
+            Error::Config(format!(
+                "{}: no column {name:?} (not a samples.csv of this version)",
+                path.display()
+            ))
+        })
+    };
+    let names = [
+        "run",
+        "block_size",
+        "diameter",
+        "step",
+        "t_star",
+        "block",
+        "row",
+        "C",
+        "F",
+        "NB",
+        "PL",
+        "PS",
+        "K",
+        "S",
+        "runs",
+        "wall_links",
+        "particle_links",
+        "link_cells",
+        "map_active",
+        "map_bodies",
+        "box_cells",
+        "rows_derived",
+        "turned",
+        "covered",
+        "rb_active",
+        "contacts_seen",
+        "scanned",
+        "m_lbm",
+        "m_bh",
+        "m_coup1",
+        "m_coup2",
+        "m_rb",
+    ];
+    let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
+    let mut c = Campaign {
+        samples: Vec::new(),
+        never_fluid: Vec::new(),
+        runs: Vec::new(),
+        fig6: Vec::new(),
+        csv: String::new(),
+    };
+    let mut fluid_seen: Vec<Vec<bool>> = Vec::new();
+    for (n, line) in lines.enumerate() {
+        let f: Vec<&str> = line.split(',').collect();
+        let num = |k: usize| -> Result<f64> {
+            f.get(idx[k]).and_then(|x| x.parse::<f64>().ok()).ok_or_else(|| {
+                Error::Config(format!(
+                    "{}:{}: column {} is not a number",
+                    path.display(),
+                    n + 2,
+                    names[k]
+                ))
+            })
+        };
+        let v: Vec<f64> = (0..names.len()).map(num).collect::<Result<_>>()?;
+        let (run, block) = (v[0] as usize, v[5] as usize);
+        let q = Quantities {
+            c: v[7],
+            f: v[8],
+            nb: v[9],
+            pl: v[10],
+            ps: v[11],
+            k: v[12],
+            s: v[13],
+            runs: v[14],
+            wall_links: v[15],
+            particle_links: v[16],
+            link_cells: v[17],
+            map_active: v[18],
+            map_bodies: v[19],
+            box_cells: v[20],
+            rows_derived: v[21],
+            turned: v[22],
+            covered: v[23],
+            rb_active: v[24],
+            contacts_seen: v[25],
+            scanned: v[26],
+        };
+        let m = PartTimes {
+            lbm: v[27],
+            bh: v[28],
+            coup1: v[29],
+            coup2: v[30],
+            rb: v[31],
+        };
+        while c.runs.len() <= run {
+            c.runs.push(RunInfo {
+                block_size: v[1] as usize,
+                diameter: v[2],
+                steps: 0,
+                samples: 0,
+                seconds: 0.0,
+            });
+            fluid_seen.push(Vec::new());
+        }
+        let r = &mut c.runs[run];
+        r.steps = r.steps.max(v[3] as u64);
+        r.samples += 1;
+        if fluid_seen[run].len() <= block {
+            fluid_seen[run].resize(block + 1, false);
+        }
+        fluid_seen[run][block] |= q.f > 0.0;
+        if run == 0 {
+            if c.fig6.len() <= block {
+                c.fig6.resize(
+                    block + 1,
+                    plots::BlockSeries {
+                        row: 0,
+                        points: Vec::new(),
+                    },
+                );
+            }
+            c.fig6[block].row = v[6] as usize;
+            c.fig6[block].points.push((v[4], q.f, m.lbm));
+        }
+        c.samples.push(Sample {
+            run,
+            step: v[3] as u64,
+            block,
+            q,
+            m,
+        });
+    }
+    c.never_fluid = fluid_seen
+        .into_iter()
+        .map(|v| v.into_iter().map(|x| !x).collect())
+        .collect();
+    Ok(c)
 }

@@ -2,7 +2,8 @@
 //! problem per part, and leave-one-run-out validation.
 //!
 //! Every workload function is linear in its coefficients, so each part is a linear least-squares
-//! problem over the samples, X's rows being the part's regressors ([`Model::row`]; eq. 14: S·(P_L+P_S)²,
+//! problem over the samples (or over their sums per block and window of steps: sums of rows stay
+//! exact for a linear model), X's rows being the part's regressors ([`Model::row`]; eq. 14: S·(P_L+P_S)²,
 //! S·P_L, S·P_S, S·K, S). What is minimised is what the statistic of section 3.4 measures: the error
 //! relative to the block's m_tot, min Σ ((x·a − m_X)/m_tot)², i.e. rows weighted by 1/m_tot (samples
 //! with m_tot ≤ 0 carry nothing and are left out). Where the model's coefficients are costs
@@ -11,6 +12,8 @@
 //! solve uses nalgebra's SVD on the column-scaled matrix (columns of unit norm: C ~ 10⁵ next to a
 //! column of ones), dropping singular values below 10⁻¹² of the largest, so a column that never varies
 //! (P_S always 0, one block size making C collinear with the intercept) gives the minimum-norm solution.
+
+use std::collections::BTreeMap;
 
 use nalgebra::{DMatrix, DVector};
 
@@ -90,25 +93,35 @@ fn nnls(x: &DMatrix<f64>, y: &DVector<f64>) -> Vec<f64> {
     a
 }
 
-/// Coefficients of part `part` (index into [`PARTS`]) of `model` over `samples`, rows weighted by
-/// 1/m_tot.
-fn fit_part(samples: &[Sample], model: Model, part: usize) -> Vec<f64> {
+/// Sums over one block's samples in one fitting window: regressors, m_X, m_tot.
+type Window = (Vec<f64>, f64, f64);
+
+/// Coefficients of part `part` (index into [`super::PARTS`]) of `model` over `samples` summed per
+/// block over windows of `window` steps, rows weighted by 1/m_tot of the window.
+fn fit_part(samples: &[Sample], model: Model, part: usize, window: u64) -> Vec<f64> {
     let k = model.terms(part).len();
-    let rows: Vec<&Sample> = samples
-        .iter()
-        .filter(|s| s.m.total().is_finite() && s.m.total() > 0.0)
-        .collect();
-    if rows.is_empty() {
+    // (run, block, window) → (summed regressors, summed m_X, summed m_tot).
+    let mut groups: BTreeMap<(usize, usize, u64), Window> = BTreeMap::new();
+    for s in samples.iter().filter(|s| s.m.total().is_finite() && s.m.total() > 0.0) {
+        let key = (s.run, s.block, s.step / window.max(1));
+        let g = groups.entry(key).or_insert_with(|| (vec![0.0; k], 0.0, 0.0));
+        for (j, v) in model.row(part, &s.q).as_slice().iter().enumerate() {
+            g.0[j] += v;
+        }
+        g.1 += s.m.as_array()[part];
+        g.2 += s.m.total();
+    }
+    if groups.is_empty() {
         return vec![0.0; k];
     }
-    let mut x = DMatrix::<f64>::zeros(rows.len(), k);
-    let mut y = DVector::<f64>::zeros(rows.len());
-    for (i, s) in rows.iter().enumerate() {
-        let w = 1.0 / s.m.total();
-        for (j, v) in model.row(part, &s.q).as_slice().iter().enumerate() {
+    let mut x = DMatrix::<f64>::zeros(groups.len(), k);
+    let mut y = DVector::<f64>::zeros(groups.len());
+    for (i, (row, m, tot)) in groups.values().enumerate() {
+        let w = 1.0 / tot;
+        for (j, v) in row.iter().enumerate() {
             x[(i, j)] = v * w;
         }
-        y[i] = s.m.as_array()[part] * w;
+        y[i] = m * w;
     }
     let scale: Vec<f64> = (0..k)
         .map(|j| {
@@ -131,15 +144,18 @@ fn fit_part(samples: &[Sample], model: Model, part: usize) -> Vec<f64> {
     (0..k).map(|j| a[j] / scale[j]).collect()
 }
 
-/// Fits the five workload functions of `model` to `samples` (see the module documentation). Returns
+/// Fits the five workload functions of `model` to `samples` summed per block over windows of `window`
+/// steps (1: every step is a row; the balancing interval: what the balancer's weights are compared
+/// with, and what averages the VM's right-skewed per-step noise to its mean; see the module
+/// documentation). Returns
 /// the coefficients with `floor` 0 and `provenance` completed: `samples` set to the number of samples,
 /// and `fit_quality` extended with the in-sample statistics of [`evaluate`] (`median_<part>`,
 /// `mad_<part>`, `median_tot`, `mad_tot`, `share_within_10pct`; non-finite values left out). With no
 /// samples every coefficient is 0.
-pub fn fit(samples: &[Sample], provenance: Provenance, model: Model) -> Coefficients {
+pub fn fit(samples: &[Sample], provenance: Provenance, model: Model, window: u64) -> Coefficients {
     let mut c = Coefficients::zeros(model, provenance);
     for (p, part) in c.parts.iter_mut().enumerate() {
-        *part = fit_part(samples, model, p);
+        *part = fit_part(samples, model, p, window);
     }
     c.provenance.samples = samples.len();
     let ev = evaluate(&c, samples);
@@ -161,7 +177,8 @@ pub fn fit(samples: &[Sample], provenance: Provenance, model: Model) -> Coeffici
     c
 }
 
-/// Leave-one-run-out validation: for each distinct `run`, fits `model` on all other runs and scores the
+/// Leave-one-run-out validation: for each distinct `run`, fits `model` (windows of `interval` steps) on
+/// all other runs and scores the
 /// left-out run with [`score`] (per step, per interval of `interval` steps, and predictively); returns
 /// the counts summed over the runs. Empty scores with fewer than two distinct runs (nothing to hold out
 /// against).
@@ -176,7 +193,7 @@ pub fn cross_validate(samples: &[Sample], model: Model, interval: u64) -> Scores
     for r in runs {
         let train: Vec<Sample> = samples.iter().filter(|s| s.run != r).copied().collect();
         let test: Vec<Sample> = samples.iter().filter(|s| s.run == r).copied().collect();
-        let c = fit(&train, Provenance::default(), model);
+        let c = fit(&train, Provenance::default(), model, interval);
         total.add(&score(&c, &test, interval));
     }
     total
@@ -223,6 +240,7 @@ mod tests {
                 ..Default::default()
             },
             Model::Paper,
+            1,
         );
         let (w, which) = worst(&c, &t);
         assert!(w < 1e-9, "worst relative coefficient error {w:e} ({which})");
@@ -248,7 +266,7 @@ mod tests {
         // intercepts, a few µs next to ms, can be off by several % of themselves).
         let t = truth();
         let samples = synthetic(&t, 20_000, 8, 0.01, 7);
-        let c = fit(&samples, Provenance::default(), Model::Paper);
+        let c = fit(&samples, Provenance::default(), Model::Paper, 1);
         let mut dev: [Vec<f64>; 5] = Default::default();
         for s in &samples {
             let (p, e) = (c.predict(&s.q).as_array(), exact(&t, &s.q).as_array());
@@ -300,7 +318,7 @@ mod tests {
         // Only rigid-body time, S varying 1…20: the fit recovers a_RB and predictions scale with S.
         let t = truth();
         let samples = synthetic(&t, 3000, 4, 0.0, 99);
-        let c = fit(&samples, Provenance::default(), Model::Paper);
+        let c = fit(&samples, Provenance::default(), Model::Paper, 1);
         for (g, w) in c.parts[4].iter().zip(&t.parts[4]) {
             assert!((g - w).abs() <= 1e-9 * w.abs(), "{g:e} vs {w:e}");
         }
@@ -322,7 +340,7 @@ mod tests {
                 ..*s
             })
             .collect();
-        let cf = fit(&flat, Provenance::default(), Model::Paper);
+        let cf = fit(&flat, Provenance::default(), Model::Paper, 1);
         let err = samples
             .iter()
             .map(|s| (cf.predict(&Quantities { s: 1.0, ..s.q }).rb - s.m.rb).abs() / s.m.rb);
@@ -344,7 +362,7 @@ mod tests {
                 }
             })
             .collect();
-        let c = fit(&samples, Provenance::default(), Model::Paper);
+        let c = fit(&samples, Provenance::default(), Model::Paper, 1);
         for (_, a) in arrays(&c) {
             assert!(a.iter().all(|v| v.is_finite()));
         }
@@ -356,7 +374,7 @@ mod tests {
         // The P_S coefficient, never seen, is (numerically) zero.
         assert!(c.parts[2][3].abs() < 1e-9 * t.parts[2][3], "{:e}", c.parts[2][3]);
         // No samples at all: zeros.
-        let z = fit(&[], Provenance::default(), Model::Paper);
+        let z = fit(&[], Provenance::default(), Model::Paper, 1);
         assert_eq!(z.parts[0], [0.0; 3]);
         assert_eq!(z.provenance.samples, 0);
         assert!(z.provenance.fit_quality.is_empty());
@@ -415,7 +433,7 @@ mod tests {
         let mk = |f: f64, alpha: f64, i: usize| Sample {
             run: 0,
             step: i as u64,
-            block: 0,
+            block: usize::from(f > 1000.0),
             q: Quantities {
                 c: f,
                 f,
@@ -431,7 +449,7 @@ mod tests {
             samples.push(mk(100.0, 1e-8, i));
             samples.push(mk(100_000.0, 1.2e-8, i));
         }
-        let c = fit(&samples, Provenance::default(), Model::Blockflow);
+        let c = fit(&samples, Provenance::default(), Model::Blockflow, 1);
         let (a1, a2) = (1.0 / 1e-8, 1.0 / 1.2e-8);
         let want = (a1 + a2) / (a1 * a1 + a2 * a2);
         // Blockflow LBM terms: F, runs (0 here), [F > 0]; the constant term is set to 0 by the
