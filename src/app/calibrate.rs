@@ -302,6 +302,8 @@ fn run_config(o: &CalibrateOptions, bs: usize, d: f64, duration: f64) -> Result<
         "processes.count=1".to_string(),
         "processes.threads_per_process=1".to_string(),
         "processes.steps_per_graph=1".to_string(),
+        // One worker on one core for the whole run (the paper pinned every process with LIKWID).
+        "processes.pin=\"compact\"".to_string(),
     ];
     config::load(&o.scene, &sets)
 }
@@ -726,12 +728,16 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         pct(r.noise_floor.step),
         pct(r.noise_floor.interval)
     );
-    s += &format!(
-        "\nnoise floor: unchanged blocks within 10 % of their own median ({} steps, {} interval sums; median relative MAD {:.1} %)\n",
-        r.noise_floor.step_samples,
-        r.noise_floor.interval_samples,
-        100.0 * r.noise_floor.step_mad
-    );
+    s += &if r.noise_floor.step_samples == 0 {
+        "\nnoise floor: no block was timed on 10 consecutive steps with nothing changed\n".to_string()
+    } else {
+        format!(
+            "\nnoise floor: unchanged blocks within 10 % of their own median ({} steps, {} interval sums; median relative MAD {:.1} %)\n",
+            r.noise_floor.step_samples,
+            r.noise_floor.interval_samples,
+            100.0 * r.noise_floor.step_mad
+        )
+    };
     s += &format!(
         "{} samples from {} runs in {:.0} s ({} samples of never-fluid blocks left out)\n",
         r.samples,

@@ -22,7 +22,6 @@ use crate::metrics::interval::{IntervalLog, IntervalStats};
 use crate::metrics::load::predicted_imbalance;
 use crate::timeloop::{Observer, RunContext};
 use blockflow_kernels::Real;
-use std::time::Instant;
 
 /// One counterfactual strategy followed through the run.
 pub struct Candidate {
@@ -57,8 +56,10 @@ impl Candidate {
         self.log.intervals()
     }
 
-    /// The balancing step at the end of an interval: weights from the interval's loads, the partitioner
-    /// (timed), the migration priced from the serialised bytes of the moved blocks.
+    /// The balancing step at the end of an interval: weights from the interval's loads and the
+    /// partitioner, timed together by the thread's CPU clock (the recording's task times are CPU times
+    /// too, and a wall clock on a loaded machine would charge other programs to the partitioner), the
+    /// migration priced from the serialised bytes of the moved blocks.
     fn balance<T: Real>(&mut self, cx: &RunContext<'_, T>, block_load: &[f64]) {
         let m = *self.log.machine();
         let p = m.processes;
@@ -67,9 +68,9 @@ impl Candidate {
             self.log.reassign(owners, f64::NAN);
             return;
         };
-        let t0 = Instant::now();
+        let t0 = blockflow_scheduler::executor::thread_cpu_ns();
         let dist = bal.rebalance(cx.sim, block_load, self.log.owners());
-        let partition = t0.elapsed().as_secs_f64();
+        let partition = (blockflow_scheduler::executor::thread_cpu_ns() - t0) as f64 * 1e-9;
         let predicted = predicted_imbalance(bal.last_weights(), &dist.owners, p);
         let mut sent = vec![(0u64, 0u64); p];
         let mut received = vec![(0u64, 0u64); p];

@@ -46,6 +46,7 @@
 //! the run is still alive.
 
 mod shared;
+pub use shared::thread_cpu_ns;
 #[cfg(test)]
 mod tests;
 mod worker;

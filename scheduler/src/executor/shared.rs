@@ -115,7 +115,7 @@ pub(super) fn store_panic(slot: &Mutex<Option<Box<dyn Any + Send>>>, payload: Bo
 
 /// Thread CPU time of the calling thread, nanoseconds.
 #[inline]
-pub(super) fn thread_cpu_ns() -> u64 {
+pub fn thread_cpu_ns() -> u64 {
     // SAFETY: an all-zero timespec is valid; clock_gettime only writes into it.
     let mut ts: libc::timespec = unsafe { std::mem::zeroed() };
     // SAFETY: valid clock id and a valid out pointer.
