@@ -633,6 +633,15 @@ fn record(plans: &[Plan]) -> Result<Campaign> {
             samples: s.samples.len(),
             seconds: ts.elapsed().as_secs_f64(),
         });
+        if bar.is_hidden() {
+            // No progress bar (stderr is not a terminal): one line per run for logs.
+            eprintln!(
+                "calibrate: run {}/{} (b_s = {bs}, D = {d}): {steps} steps in {:.0} s",
+                r + 1,
+                plans.len(),
+                ts.elapsed().as_secs_f64()
+            );
+        }
     }
     bar.finish_and_clear();
     Ok(c)

@@ -195,7 +195,11 @@ pub(super) fn line_panel(
         if let [p] = pts[..] {
             chart.draw_series(std::iter::once(Circle::new(p, 4, c.filled())))?;
         } else {
-            chart.draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(2)))?;
+            // Thick polylines join their segments with mitres, and a series with more points than
+            // pixels zigzags at sharp angles: its mitres would draw spikes far past the data. Dense
+            // series are drawn one pixel wide.
+            let width = if pts.len() > 400 { 1 } else { 2 };
+            chart.draw_series(LineSeries::new(pts.iter().copied(), c.stroke_width(width)))?;
         }
     }
     Ok(())
