@@ -104,6 +104,7 @@ fn test_sized_study_writes_table_and_figures() {
         weights: Some(blockflow::config::Weights::Measured),
         steps: Some(100),
         live: false,
+        live_rounds: 1,
         out: out.clone(),
         record_threads: Some(2),
     };

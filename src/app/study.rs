@@ -63,6 +63,10 @@ pub struct StudyArgs {
     /// Also run every strategy for real on P × T threads: modeled against measured.
     #[arg(long)]
     pub live: bool,
+    /// Rounds of live runs: every strategy once per round, in turn, so that slow and fast phases of
+    /// the machine fall on all of them; each live column is the median over the rounds.
+    #[arg(long, default_value_t = 1)]
+    pub live_rounds: usize,
     /// Threads of the recording run (default: the machine's cores).
     #[arg(long)]
     pub record_threads: Option<usize>,
@@ -94,6 +98,7 @@ pub fn execute(a: StudyArgs) -> Result<()> {
         weights,
         steps: a.steps,
         live: a.live,
+        live_rounds: a.live_rounds.max(1),
         out: a.out.clone(),
         record_threads: a.record_threads,
     };
@@ -127,6 +132,8 @@ pub struct StudyOptions {
     pub steps: Option<u64>,
     /// Also run every strategy for real.
     pub live: bool,
+    /// Rounds of live runs (medians over them).
+    pub live_rounds: usize,
     /// Output folder.
     pub out: PathBuf,
     /// Threads of the recording run (default: the machine's cores).
@@ -152,6 +159,45 @@ pub struct LiveRow {
     pub checksums_equal: bool,
     /// Blocks the live run moved.
     pub migrated_blocks: u64,
+    /// The study's modeled run time relative to its `none` row, percent change (Table 3's column).
+    pub modeled_gain: f64,
+    /// The live run's measured wall time relative to the live `none` run, percent change.
+    pub measured_gain: f64,
+    /// Rounds the live columns are medians over.
+    pub rounds: usize,
+}
+
+/// The median of one strategy's live rounds: seconds and LI by their medians, flags true only if true
+/// in every round, blocks migrated of the first round.
+fn median_row(rounds: &[LiveRow]) -> LiveRow {
+    let med = |f: fn(&LiveRow) -> f64| report::median(rounds.iter().map(f));
+    LiveRow {
+        name: rounds[0].name.clone(),
+        study_modeled_seconds: rounds[0].study_modeled_seconds,
+        live_modeled_seconds: med(|r| r.live_modeled_seconds),
+        live_wall_seconds: med(|r| r.live_wall_seconds),
+        live_imbalance_median: med(|r| r.live_imbalance_median),
+        replay_reproduces_li: rounds.iter().all(|r| r.replay_reproduces_li),
+        checksums_equal: rounds.iter().all(|r| r.checksums_equal),
+        migrated_blocks: rounds[0].migrated_blocks,
+        modeled_gain: f64::NAN,
+        measured_gain: f64::NAN,
+        rounds: rounds.len(),
+    }
+}
+
+/// Fills the gains of every live row against the row named `none` (NaN without one): what Table 3
+/// claims beside what the live runs measured, so that their difference is in the output.
+fn live_gains(rows: &mut [LiveRow]) {
+    let base = rows
+        .iter()
+        .find(|r| r.name == "none")
+        .map(|r| (r.study_modeled_seconds, r.live_wall_seconds));
+    for r in rows.iter_mut() {
+        let (m, w) = base.unwrap_or((f64::NAN, f64::NAN));
+        r.modeled_gain = 100.0 * (r.study_modeled_seconds / m - 1.0);
+        r.measured_gain = 100.0 * (r.live_wall_seconds / w - 1.0);
+    }
 }
 
 /// What `study.json` holds.
@@ -383,9 +429,14 @@ fn study_t<T: Real>(cfg: &Config, scene: &Scene, opts: &StudyOptions) -> Result<
     let sums = checksums(tl.sim());
     let mut live = Vec::new();
     if opts.live {
-        for r in &rows {
-            live.push(live_run::<T>(cfg, scene, opts, steps, r, &sums)?);
+        let mut rounds: Vec<Vec<LiveRow>> = vec![Vec::new(); rows.len()];
+        for _ in 0..opts.live_rounds {
+            for (i, r) in rows.iter().enumerate() {
+                rounds[i].push(live_run::<T>(cfg, scene, opts, steps, r, &sums)?);
+            }
         }
+        live = rounds.into_iter().map(|v| median_row(&v)).collect();
+        live_gains(&mut live);
     }
     let report = StudyReport {
         scene: opts.scene.display().to_string(),
@@ -442,22 +493,29 @@ fn live_run<T: Real>(
         replay_reproduces_li: replayed == measured,
         checksums_equal: checksums(tl.sim()) == *sums,
         migrated_blocks: iv.iter().map(|i| i.migrated_blocks).sum(),
+        modeled_gain: f64::NAN,
+        measured_gain: f64::NAN,
+        rounds: 1,
     })
 }
 
 /// Markdown of the live rows.
 pub fn live_markdown(rows: &[LiveRow]) -> String {
     let mut s = String::from(
-        "| strategy | study modeled (s) | live modeled (s) | live measured (s) | live median LI | replay = live LI \
-         | checksums equal | blocks migrated |\n|---|---:|---:|---:|---:|---|---|---:|\n",
+        "| strategy | study modeled (s) | live modeled (s) | live measured (s) | modeled gain | measured gain | difference \
+         | live median LI | replay = live LI | checksums equal | blocks migrated |\n\
+         |---|---:|---:|---:|---:|---:|---:|---:|---|---|---:|\n",
     );
     for r in rows {
         s += &format!(
-            "| {} | {:.3} | {:.3} | {:.3} | {:.1} % | {} | {} | {} |\n",
+            "| {} | {:.3} | {:.3} | {:.3} | {:+.1} % | {:+.1} % | {:+.1} pt | {:.1} % | {} | {} | {} |\n",
             r.name,
             r.study_modeled_seconds,
             r.live_modeled_seconds,
             r.live_wall_seconds,
+            r.modeled_gain,
+            r.measured_gain,
+            r.measured_gain - r.modeled_gain,
             100.0 * r.live_imbalance_median,
             r.replay_reproduces_li,
             r.checksums_equal,
