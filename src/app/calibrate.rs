@@ -441,11 +441,11 @@ fn fit_and_report(
         let held = estimator::cross_validate(&fluid, model, o.interval);
         let r = ModelReport::of(&ev, &in_sample, &held);
         if model == o.model {
-            chosen = Some((coeffs, ev));
+            chosen = Some(coeffs);
         }
         models.insert(model.name().to_string(), r);
     }
-    let (mut coeffs, _) = chosen.expect("the chosen model is one of the two");
+    let mut coeffs = chosen.expect("the chosen model is one of the two");
     let report_chosen = &models[o.model.name()];
     coeffs.provenance.fit_quality = report_chosen
         .share_within_10pct
