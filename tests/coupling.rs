@@ -165,12 +165,14 @@ fn particulate_summaries_carry_parts_and_both_checksums() {
 }
 
 /// Dynamic balancing every interval (measured and corrected weights, both curves) moves blocks, lowers
-/// the load imbalance after the first interval, and leaves the final state bitwise unchanged.
+/// the load imbalance below the static split by fluid cells, and leaves the final state bitwise
+/// unchanged.
 #[test]
 fn dynamic_balancing_moves_blocks_and_keeps_the_result() {
     let base = ["processes.count=3", "balance.interval=50", "run.steps=200"];
     let mut sets: Vec<&str> = base.to_vec();
     sets.push("balance.strategy=\"none\"");
+    sets.push("balance.weights=\"cells\"");
     let s0 = run("hopper-small.toml", &sets);
     for (strategy, weights) in [("hilbert", "measured"), ("morton", "corrected")] {
         let st = format!("balance.strategy=\"{strategy}\"");
