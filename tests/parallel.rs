@@ -28,14 +28,27 @@ fn serial_checksum(file: &str, sets: &[&str], steps: u64) -> u64 {
 }
 
 #[test]
-fn checksums_identical_for_every_process_layout_pinning_stealing_and_curve() {
+fn checksums_identical_for_every_process_layout_pinning_stealing_curve_and_pattern() {
     for (file, base, steps) in SCENES {
-        let want = serial_checksum(file, base, steps);
-        for (p, t) in [(1, 1), (2, 1), (3, 2), (8, 1), (5, 2)] {
+        // The serial loop under pull streaming is the reference; under AA it gives the same bits.
+        let mut pull: Vec<&str> = base.to_vec();
+        pull.push("fluid.streaming=\"pull\"");
+        let want = serial_checksum(file, &pull, steps);
+        assert_eq!(
+            serial_checksum(file, base, steps),
+            want,
+            "{file}: AA serial differs from pull"
+        );
+        for (k, (p, t)) in [(1, 1), (2, 1), (3, 2), (8, 1), (5, 2)].into_iter().enumerate() {
             for pin in ["none", "compact"] {
                 for steal in ["process", "global"] {
                     for curve in ["hilbert", "morton"] {
+                        // Both patterns over every combination: the pattern alternates with the process
+                        // layout, pinning and stealing, so each pattern meets each value of each option.
+                        let aa = (k + usize::from(pin == "none") + usize::from(steal == "global")) % 2 == 0;
+                        let streaming = if aa { "aa" } else { "pull" };
                         let mut sets: Vec<String> = base.iter().map(|s| s.to_string()).collect();
+                        sets.push(format!("fluid.streaming=\"{streaming}\""));
                         sets.push(format!("processes.count={p}"));
                         sets.push(format!("processes.threads_per_process={t}"));
                         sets.push(format!("processes.pin=\"{pin}\""));
@@ -54,7 +67,7 @@ fn checksums_identical_for_every_process_layout_pinning_stealing_and_curve() {
                         assert_eq!(
                             tl.sim().checksum(),
                             want,
-                            "{file}: P={p} T={t} pin={pin} steal={steal} curve={curve} differs from the serial loop"
+                            "{file}: P={p} T={t} pin={pin} steal={steal} curve={curve} {streaming} differs from the serial loop"
                         );
                     }
                 }

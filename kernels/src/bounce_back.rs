@@ -1,29 +1,35 @@
-//! Bounce-back walls for pull streaming: simple bounce-back (no-slip) and moving-wall bounce-back.
+//! Bounce-back walls: simple bounce-back (no-slip) and moving-wall bounce-back.
 //!
-//! A link joins a fluid cell x to a wall cell w = x - c_q. Before the pull stream, the boundary pass writes
-//! into the wall cell the value that x will pull: f_q(w) = f*_q̄(x) + 6 w_q ρ0 (c_q · u_w), i.e. the
-//! population that left x towards the wall comes back reflected, carrying the wall's momentum (Ladd 1994;
-//! eq. 6 with δ_q = 1/2). Each (w, q) is written by exactly one link, so the pass has no write conflicts.
+//! A link joins a fluid cell x to a wall cell w = x - c_q. Before the next stream, the boundary pass sets
+//! the wall cell's post-collision population that x will receive: f*_q(w) = f*_q̄(x) + 6 w_q ρ0 (c_q · u_w),
+//! i.e. the population that left x towards the wall comes back reflected, carrying the wall's momentum
+//! (Ladd 1994; eq. 6 with δ_q = 1/2). Each (w, q) is written by exactly one link, so the pass has no write
+//! conflicts. Under pull streaming f*_q(w) lies at (w, q) and f*_q̄(x) at (x, q̄); under the AA pattern
+//! ([`crate::field::Slots`]) at (w, q̄) and (x, q) after an odd number of steps and, after an even number,
+//! at (x, q) and (w, q̄): the same two elements with the roles swapped.
 
 use crate::d3q19::{C, OPP, W};
-use crate::field::{Layout, PdfField};
+use crate::field::{Layout, Pattern, PdfField};
 use crate::real::Real;
 
 /// The bounce-back links of one block, as flat element offsets into a field (`q * stride + idx`).
 #[derive(Clone, Debug, Default)]
 pub struct Links<T> {
-    /// (destination in the wall cell, source in the fluid cell) for resting walls.
+    /// The element pair of each resting-wall link: `[f*_q(w), f*_q̄(x)]` for pull, `[(w, q̄), (x, q)]` for AA.
     pub noslip: Vec<[usize; 2]>,
-    /// (destination, source) plus the moving-wall term 6 w_q (c_q · u_w).
+    /// The element pair plus the moving-wall term 6 w_q (c_q · u_w).
     pub moving: Vec<([usize; 2], T)>,
+    /// The streaming pattern the pairs are laid out for.
+    pub pattern: Pattern,
 }
 
 impl<T: Real> Links<T> {
-    /// An empty link list.
-    pub fn new() -> Self {
+    /// An empty link list for fields streamed by `pattern`.
+    pub fn new(pattern: Pattern) -> Self {
         Links {
             noslip: Vec::new(),
             moving: Vec::new(),
+            pattern,
         }
     }
 
@@ -31,8 +37,10 @@ impl<T: Real> Links<T> {
     /// velocity `u_w` (zero for a resting wall).
     pub fn push(&mut self, layout: &Layout, fluid: usize, q: usize, u_w: [f64; 3]) {
         let wall = (fluid as isize - layout.offset(C[q])) as usize;
-        let dst = q * layout.stride + wall;
-        let src = OPP[q] * layout.stride + fluid;
+        let (dst, src) = match self.pattern {
+            Pattern::Pull => (q * layout.stride + wall, OPP[q] * layout.stride + fluid),
+            Pattern::Aa => (OPP[q] * layout.stride + wall, q * layout.stride + fluid),
+        };
         if u_w == [0.0; 3] {
             self.noslip.push([dst, src]);
         } else {
@@ -51,26 +59,34 @@ impl<T: Real> Links<T> {
         self.len() == 0
     }
 
-    /// The boundary pass: writes every wall value the next pull stream will read.
-    pub fn apply(&self, f: &mut PdfField<T>) {
+    /// The boundary pass on the state after a number of steps of parity `parity`: writes every wall
+    /// value the next stream will read.
+    pub fn apply(&self, f: &mut PdfField<T>, parity: usize) {
         // SAFETY: exclusive access through &mut.
-        unsafe { self.apply_raw(f.raw(), f.layout.len()) }
+        unsafe { self.apply_raw(f.raw(), f.layout.len(), parity) }
     }
 
-    /// The boundary pass through a raw pointer to a field of `len` elements.
+    /// The boundary pass through a raw pointer to a field of `len` elements holding the state after a
+    /// number of steps of parity `parity`.
     ///
     /// # Safety
     /// `data` points to a field of this block's layout with `len` elements; during the call no other thread
-    /// reads the wall elements written or writes the fluid elements read (the task graph orders the
-    /// boundary pass against the ghost exchange and the sweeps).
-    pub unsafe fn apply_raw(&self, data: *mut T, len: usize) {
-        for &[dst, src] in &self.noslip {
-            debug_assert!(dst < len && src < len);
-            *data.add(dst) = *data.add(src);
+    /// reads the elements written or writes the elements read (the task graph orders the boundary pass
+    /// against the ghost exchange and the sweeps).
+    pub unsafe fn apply_raw(&self, data: *mut T, len: usize, parity: usize) {
+        // AA after an even number of steps: f*_q(w) is at (x, q), the second element of the pair.
+        let (d, s) = if self.pattern == Pattern::Aa && parity == 0 {
+            (1, 0)
+        } else {
+            (0, 1)
+        };
+        for pair in &self.noslip {
+            debug_assert!(pair[0] < len && pair[1] < len);
+            *data.add(pair[d]) = *data.add(pair[s]);
         }
-        for &([dst, src], t) in &self.moving {
-            debug_assert!(dst < len && src < len);
-            *data.add(dst) = *data.add(src) + t;
+        for (pair, t) in &self.moving {
+            debug_assert!(pair[0] < len && pair[1] < len);
+            *data.add(pair[d]) = *data.add(pair[s]) + *t;
         }
     }
 }

@@ -6,7 +6,7 @@
 //! the TRT kernel on this machine). Values are stored *zero-centred*: `f_q - w_q` (ρ0 = 1), which keeps
 //! f32 accurate and makes the rest state all zeros.
 
-use crate::d3q19::Q;
+use crate::d3q19::{C, OPP, Q};
 use crate::real::Real;
 use std::alloc::{alloc_zeroed, dealloc, Layout as AllocLayout};
 
@@ -91,6 +91,69 @@ impl Layout {
     }
 }
 
+/// How populations stream between steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Pattern {
+    /// Two fields: each step pulls f_q(x − c_q) from one field and writes the post-collision state of x
+    /// into the other (eq. 4 then eq. 2).
+    Pull,
+    /// One field updated in place (AA pattern, Bailey et al. 2009). A step that starts after an even
+    /// number of steps reads (x, q) and writes the post-collision f*_q(x) to (x, q̄); a step after an odd
+    /// number reads (x − c_q, q̄) and writes f*_q(x) to (x + c_q, q). Same collision, same arithmetic.
+    #[default]
+    Aa,
+}
+
+impl Pattern {
+    /// PDF fields a block holds under this pattern.
+    pub fn fields(self) -> usize {
+        match self {
+            Pattern::Pull => 2,
+            Pattern::Aa => 1,
+        }
+    }
+
+    /// The field (0 or 1) that holds the state after a number of steps of parity `parity`.
+    #[inline(always)]
+    pub fn field_of(self, parity: usize) -> usize {
+        match self {
+            Pattern::Pull => parity,
+            Pattern::Aa => 0,
+        }
+    }
+}
+
+/// Where the post-collision populations of the state after a number of steps of a given parity are
+/// stored: f*_q(x) of the cell at element index i lies at element `base[q] + i` of its field
+/// (direction-major). Pull: (x, q). AA after an even number of steps: (x + c_q, q) (the next step reads
+/// its incoming populations in place); after an odd number: (x, q̄). Every (q, x) has its own element,
+/// so exchange, boundary, coupling, output and checkpoints address the same physical state under either
+/// pattern through this map.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Slots {
+    base: [isize; Q],
+}
+
+impl Slots {
+    /// The map of `pattern` for the state after a number of steps of parity `parity` (0 or 1).
+    pub fn new(pattern: Pattern, layout: &Layout, parity: usize) -> Self {
+        let s = layout.stride as isize;
+        Slots {
+            base: std::array::from_fn(|q| match (pattern, parity) {
+                (Pattern::Pull, _) => q as isize * s,
+                (Pattern::Aa, 0) => q as isize * s + layout.offset(C[q]),
+                (Pattern::Aa, _) => OPP[q] as isize * s,
+            }),
+        }
+    }
+
+    /// Element (direction-major, `q * stride + idx` form) holding f*_q of the cell at index `i`.
+    #[inline(always)]
+    pub fn at(&self, q: usize, i: usize) -> usize {
+        (self.base[q] + i as isize) as usize
+    }
+}
+
 /// A page-aligned, zero-initialised buffer. Memory is obtained with `alloc_zeroed`, so large buffers are
 /// mapped lazily and first-touched by whichever thread writes them first (NUMA placement).
 pub struct AlignedBuf<T: Real> {
@@ -138,6 +201,28 @@ impl<T: Real> AlignedBuf<T> {
         unsafe { self.ptr.add(self.offset) }
     }
 
+    /// Asks the kernel to back the whole 2 MiB-aligned pages of the buffer with transparent huge pages
+    /// (`madvise(MADV_HUGEPAGE)`; effective for pages not touched yet). Returns whether the call was made
+    /// and succeeded (false on other systems, for buffers smaller than one huge page, or when refused).
+    pub fn advise_huge_pages(&mut self) -> bool {
+        const HUGE: usize = 2 << 20;
+        let start = self.ptr as usize;
+        let end = start + self.alloc_len * T::BYTES;
+        let (lo, hi) = (start.next_multiple_of(HUGE), end / HUGE * HUGE);
+        if hi <= lo {
+            return false;
+        }
+        #[cfg(target_os = "linux")]
+        {
+            // SAFETY: [lo, hi) lies inside this allocation; the advice changes no contents.
+            unsafe { libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE) == 0 }
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            false
+        }
+    }
+
     /// The elements as a mutable slice.
     #[inline(always)]
     pub fn as_mut_slice(&mut self) -> &mut [T] {
@@ -169,6 +254,12 @@ impl<T: Real> PdfField<T> {
             layout,
             buf: AlignedBuf::zeroed(layout.len(), skew_bytes),
         }
+    }
+
+    /// Advises the field's memory to transparent huge pages ([`AlignedBuf::advise_huge_pages`]); call
+    /// before the first write.
+    pub fn advise_huge_pages(&mut self) -> bool {
+        self.buf.advise_huge_pages()
     }
 
     /// All values, direction-major: `data()[q * stride + idx]`.
@@ -212,6 +303,22 @@ impl<T: Real> PdfField<T> {
     pub fn set_cell(&mut self, i: usize, f: &[T; Q]) {
         for (q, &v) in f.iter().enumerate() {
             self.set(q, i, v);
+        }
+    }
+
+    /// The post-collision populations f*_q of cell i, read through the pattern's map `slots`.
+    #[inline]
+    pub fn post_cell(&self, slots: &Slots, i: usize) -> [T; Q] {
+        let d = self.data();
+        std::array::from_fn(|q| d[slots.at(q, i)])
+    }
+
+    /// Overwrites the post-collision populations of cell i through the map `slots`.
+    #[inline]
+    pub fn set_post_cell(&mut self, slots: &Slots, i: usize, f: &[T; Q]) {
+        let d = self.data_mut();
+        for (q, &v) in f.iter().enumerate() {
+            d[slots.at(q, i)] = v;
         }
     }
 }

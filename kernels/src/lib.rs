@@ -17,7 +17,7 @@ pub mod simd;
 pub mod sweep;
 pub mod trt;
 
-pub use field::{Layout, PdfField};
+pub use field::{Layout, Pattern, PdfField, Slots};
 pub use real::Real;
 pub use sweep::{Segment, SweepStats};
 pub use trt::TrtParams;

@@ -16,6 +16,10 @@ use std::sync::Mutex;
 /// Top-level config tables a restart may change (they never change a number of the state).
 pub const RESTART_MAY_CHANGE: [&str; 3] = ["run", "processes", "balance"];
 
+/// Keys of the physics tables that choose only how the same arithmetic is carried out (the kernels give
+/// the same bits under each value), so a restart may change them too.
+pub const RESTART_MAY_CHANGE_KEYS: [(&str, &str); 2] = [("fluid", "streaming"), ("fluid", "kernel")];
+
 impl Checkpoint {
     /// Puts the checkpoint's state into a fresh time loop of the same configuration: the simulation's
     /// blocks (decoded on their owners' threads), the particle counters, the balancer's state; the
@@ -105,6 +109,11 @@ fn physics(cfg: &Config) -> toml::Table {
     for k in RESTART_MAY_CHANGE {
         t.remove(k);
     }
+    for (table, key) in RESTART_MAY_CHANGE_KEYS {
+        if let Some(toml::Value::Table(x)) = t.get_mut(table) {
+            x.remove(key);
+        }
+    }
     t
 }
 
@@ -120,12 +129,13 @@ pub fn restart_config(ck: &Checkpoint, scene: Option<&Path>, overrides: &[String
         config::apply_override(&mut table, o)?;
         let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
         let top = key.split('.').next().unwrap_or("");
-        if !RESTART_MAY_CHANGE.contains(&top) {
+        let same_bits = RESTART_MAY_CHANGE_KEYS.iter().any(|(t, k)| key == format!("{t}.{k}"));
+        if !RESTART_MAY_CHANGE.contains(&top) && !same_bits {
             let (a, b) = (before.get(top), table.get(top));
             if first_difference(top, a, b).is_some() {
                 return Err(Error::Config(format!(
-                    "--set {o}: a restart continues the physics of checkpoint {}; only run.*, processes.* and \
-                     balance.* keys may change",
+                    "--set {o}: a restart continues the physics of checkpoint {}; only run.*, processes.*, \
+                     balance.*, fluid.streaming and fluid.kernel keys may change",
                     ck.path.display()
                 )));
             }

@@ -25,6 +25,35 @@ pub enum KernelChoice {
     Split,
 }
 
+/// How populations stream between steps (`fluid.streaming`).
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Streaming {
+    /// One PDF field updated in place (AA pattern): half the PDF memory and memory traffic (default).
+    #[default]
+    Aa,
+    /// Two PDF fields, pull streaming from one into the other.
+    Pull,
+}
+
+impl Streaming {
+    /// The config word (`"aa"` or `"pull"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Streaming::Aa => "aa",
+            Streaming::Pull => "pull",
+        }
+    }
+
+    /// The kernels' pattern.
+    pub fn pattern(self) -> blockflow_kernels::Pattern {
+        match self {
+            Streaming::Aa => blockflow_kernels::Pattern::Aa,
+            Streaming::Pull => blockflow_kernels::Pattern::Pull,
+        }
+    }
+}
+
 /// `[fluid]`: the lattice Boltzmann model.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -43,6 +72,9 @@ pub struct FluidConfig {
     /// `"fused"` (default) or `"split"` kernels.
     #[serde(default)]
     pub kernel: KernelChoice,
+    /// `"aa"` (default: one field, in place) or `"pull"` (two fields). Both give the same bits.
+    #[serde(default)]
+    pub streaming: Streaming,
     /// `false` switches the fluid off (rigid bodies only): no PDF is stored or computed, no fluid task.
     #[serde(default = "yes")]
     pub enabled: bool,
@@ -67,6 +99,7 @@ impl Default for FluidConfig {
             precision: Precision::F64,
             velocity_limit: default_velocity_limit(),
             kernel: KernelChoice::Fused,
+            streaming: Streaming::Aa,
             enabled: true,
         }
     }

@@ -17,7 +17,7 @@ pub use balance::{
     DEFAULT_LATENCY,
 };
 pub use domain::DomainConfig;
-pub use fluid::{FluidConfig, KernelChoice, Precision};
+pub use fluid::{FluidConfig, KernelChoice, Precision, Streaming};
 pub use parse::{apply_override, load, parse, parse_table};
 pub use particles::{ParticlesConfig, SurfaceBoundary};
 pub use processes::{PinConfig, ProcessesConfig, StealConfig};

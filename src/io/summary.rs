@@ -166,6 +166,12 @@ pub struct Summary {
     pub threads_per_process: usize,
     /// `"f64"` or `"f32"`.
     pub precision: String,
+    /// Streaming pattern: `"aa"` (one PDF field per block, in place) or `"pull"` (two).
+    pub streaming: String,
+    /// Bytes of PDF storage allocated over all blocks (padding and ghost layers included).
+    pub pdf_bytes: u64,
+    /// The memory estimate the run was checked against before anything was allocated, bytes.
+    pub memory_estimate_bytes: u64,
     /// Relaxation time τ+.
     pub tau: f64,
     /// Magic parameter Λ.

@@ -1,4 +1,4 @@
-//! One block: its PDF fields (source and destination), cell flags, fluid segments, bounce-back links and
+//! One block: its PDF field(s) (one under AA streaming, source and destination under pull), cell flags, fluid segments, bounce-back links and
 //! the list of ghost regions it must receive. Built once per block layout from the scene geometry.
 
 use crate::physics::domain::{DomainSpec, NEIGHBOURS};
@@ -6,12 +6,21 @@ use crate::physics::geometry::{flags, CellKind, Geometry};
 use blockflow_kernels::bounce_back::Links;
 use blockflow_kernels::d3q19::{crossing_directions, C, Q};
 use blockflow_kernels::sweep::Segment;
-use blockflow_kernels::{Layout, PdfField, Real};
+use blockflow_kernels::{Layout, Pattern, PdfField, Real, Slots};
 use std::cell::UnsafeCell;
 
 /// Byte skew of a block's second field against the first, so source and destination arrays do not alias
 /// on 4 KiB pages either.
 const DST_SKEW_BYTES: usize = 2048 + 96;
+
+/// The page skew of field `k` (0 or 1) of a block.
+fn skew(k: usize) -> usize {
+    if k == 0 {
+        0
+    } else {
+        DST_SKEW_BYTES
+    }
+}
 
 /// A ghost region this block receives: the neighbour at `offset` sends the `directions` that cross.
 #[derive(Clone, Debug)]
@@ -50,12 +59,18 @@ pub struct Block<T: Real> {
     pub coords: [usize; 3],
     /// Global coordinates of the first interior cell.
     pub origin: [usize; 3],
-    /// Index arithmetic of both fields.
+    /// Index arithmetic of the fields.
     pub layout: Layout,
-    /// The two PDF fields. After `s` steps the state (post-collision PDFs) is in `fields[s % 2]`; step
-    /// `s + 1` fills that field's ghost layer and wall cells, then streams and collides into the other one.
-    /// Behind `UnsafeCell` so tasks of the step graph can work on disjoint regions concurrently.
-    fields: [UnsafeCell<PdfField<T>>; 2],
+    /// How the PDFs stream: one field in place (AA) or two (pull).
+    pub pattern: Pattern,
+    /// Where the state after an even (`[0]`) or odd (`[1]`) number of steps keeps each post-collision
+    /// population ([`Slots`]).
+    slots: [Slots; 2],
+    /// The PDF fields: one under AA; under pull two, the state after `s` steps in `fields[s % 2]`. A step
+    /// fills the state's ghost layer and wall cells, then streams and collides (in place under AA, into
+    /// the other field under pull). Behind `UnsafeCell` so tasks of the step graph can work on disjoint
+    /// regions concurrently.
+    fields: Vec<UnsafeCell<PdfField<T>>>,
     /// Flag byte per cell, indexed like the fields (ghost layer included).
     pub flags: Vec<u8>,
     /// Runs of fluid cells along x: what the kernels sweep.
@@ -97,8 +112,8 @@ pub struct StaticGeometry<T: Real> {
 
 impl<T: Real> StaticGeometry<T> {
     /// Classifies every cell of block `id` of `d` (ghost layer included) against the geometry, cell by
-    /// cell, and derives flags, fluid runs and links from it.
-    pub fn derive(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+    /// cell, and derives flags, fluid runs and links (laid out for `pattern`) from it.
+    pub fn derive(d: &DomainSpec, geo: &Geometry, id: usize, pattern: Pattern) -> Self {
         let layout = Layout::new::<T>(d.block_size);
         let origin = d.origin(id);
         let [fx, fy, fz] = layout.full();
@@ -128,7 +143,7 @@ impl<T: Real> StaticGeometry<T> {
                 }
             }
         }
-        let mut links = Links::new();
+        let mut links = Links::new(pattern);
         let mut segments = Vec::new();
         let mut fluid_cells = 0;
         let mut near = 0;
@@ -189,8 +204,9 @@ impl<T: Real> StaticGeometry<T> {
 
 impl<T: Real> Block<T> {
     /// Builds block `id` of `d` from the geometry: flags (ghost layer included), segments, links and the
-    /// ghost regions it needs. Fields start at rest; call [`Block::init`] to set an initial state.
-    pub fn new(d: &DomainSpec, geo: &Geometry, id: usize) -> Self {
+    /// ghost regions it needs, with the fields of streaming `pattern`. Fields start at rest; call
+    /// [`Block::init`] to set an initial state.
+    pub fn new(d: &DomainSpec, geo: &Geometry, id: usize, pattern: Pattern) -> Self {
         let StaticGeometry {
             layout,
             flags: fl,
@@ -198,7 +214,7 @@ impl<T: Real> Block<T> {
             links,
             fluid_cells,
             near_boundary_cells: near,
-        } = StaticGeometry::derive(d, geo, id);
+        } = StaticGeometry::derive(d, geo, id, pattern);
         let origin = d.origin(id);
         let mut recv = Vec::new();
         if fluid_cells > 0 {
@@ -240,10 +256,11 @@ impl<T: Real> Block<T> {
             coords: d.coords(id),
             origin,
             layout,
-            fields: [
-                UnsafeCell::new(PdfField::new(layout, 0)),
-                UnsafeCell::new(PdfField::new(layout, DST_SKEW_BYTES)),
-            ],
+            pattern,
+            slots: [Slots::new(pattern, &layout, 0), Slots::new(pattern, &layout, 1)],
+            fields: (0..pattern.fields())
+                .map(|p| UnsafeCell::new(PdfField::new(layout, skew(p))))
+                .collect(),
             flags: fl,
             segments,
             links,
@@ -284,41 +301,45 @@ impl<T: Real> Block<T> {
         self.particle_cells().map_or(self.fluid_cells, |pc| pc.fluid_cells)
     }
 
-    /// Field `p` (0 or 1) for reading. Callers must not hold it across a concurrent writer of the same
-    /// elements; the step graph guarantees that (see `pipeline`).
+    /// The field holding the state after a number of steps of parity `p` (0 or 1), for reading. Callers
+    /// must not hold it across a concurrent writer of the same elements; the step graph guarantees that
+    /// (see `pipeline`).
     #[inline]
     pub fn field(&self, p: usize) -> &PdfField<T> {
         // SAFETY: a shared view; concurrent writes only go through raw pointers to elements that no
         // reader of this view touches at the same time (ordered by the task graph).
-        unsafe { &*self.fields[p].get() }
+        unsafe { &*self.fields[self.pattern.field_of(p)].get() }
     }
 
-    /// Field `p` for writing through a shared block reference.
+    /// The field of parity `p` for writing through a shared block reference.
     ///
     /// # Safety
-    /// No other reference to field `p` may be alive or created until the returned one is dropped.
+    /// No other reference to that field may be alive or created until the returned one is dropped.
     #[inline]
     #[allow(clippy::mut_from_ref)]
     pub unsafe fn field_mut(&self, p: usize) -> &mut PdfField<T> {
-        &mut *self.fields[p].get()
+        &mut *self.fields[self.pattern.field_of(p)].get()
     }
 
-    /// Field `p` for writing with exclusive access to the block.
-    pub fn field_excl(&mut self, p: usize) -> &mut PdfField<T> {
-        self.fields[p].get_mut()
+    /// Where the state after a number of steps of parity `p` keeps each post-collision population.
+    #[inline]
+    pub fn slots(&self, p: usize) -> &Slots {
+        &self.slots[p & 1]
     }
 
-    /// Sets every fluid cell of field 0 (the state after 0 steps) to the post-collision state
-    /// `f(global cell)` (zero-centred PDFs).
+    /// Sets every fluid cell of the state after 0 steps to the post-collision state `f(global cell)`
+    /// (zero-centred PDFs).
     pub fn init(&mut self, mut f: impl FnMut([usize; 3]) -> [f64; Q]) {
         let l = self.layout;
+        let slots = self.slots[0];
+        let field = self.fields[0].get_mut();
         for s in &self.segments {
             let [x0, y, z] = l.coords(s.start);
             for x in x0..x0 + s.len {
                 let g = [self.origin[0] + x - 1, self.origin[1] + y - 1, self.origin[2] + z - 1];
                 let v = f(g);
                 let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(v[q]));
-                self.fields[0].get_mut().set_cell(l.idx(x, y, z), &cell);
+                field.set_post_cell(&slots, l.idx(x, y, z), &cell);
             }
         }
     }
@@ -337,19 +358,20 @@ impl<T: Real> Block<T> {
         }
     }
 
-    /// A fresh field at rest for slot `p` (0 or 1), with the slot's page skew. Its pages are mapped lazily:
-    /// the first thread that writes them places them (first touch).
+    /// A fresh field at rest for the state of parity `p` (0 or 1), with its field's page skew. Its pages
+    /// are mapped lazily: the first thread that writes them places them (first touch).
     pub fn fresh_field(&self, p: usize) -> PdfField<T> {
-        PdfField::new(self.layout, if p == 0 { 0 } else { DST_SKEW_BYTES })
+        PdfField::new(self.layout, skew(self.pattern.field_of(p)))
     }
 
-    /// Replaces field `p` (e.g. by one rebuilt from a serialised block) and returns the old one.
+    /// Replaces the field of parity `p` (e.g. by one rebuilt from a serialised block) and returns the old
+    /// one.
     ///
     /// # Safety
-    /// No other reference to field `p` may be alive, and no task may run on this block.
+    /// No other reference to that field may be alive, and no task may run on this block.
     pub unsafe fn replace_field(&self, p: usize, f: PdfField<T>) -> PdfField<T> {
         assert_eq!(f.layout, self.layout, "replacement field of another layout");
-        std::mem::replace(&mut *self.fields[p].get(), f)
+        std::mem::replace(&mut *self.fields[self.pattern.field_of(p)].get(), f)
     }
 
     /// Replaces the particle overlay (`None`: no particles mapped into this block) and returns the old one.
@@ -368,7 +390,7 @@ impl<T: Real> Block<T> {
     /// (which every task keeps using, so results do not change). Panics if they differ: the static
     /// geometry is then not static.
     pub fn check_static_geometry(&self, d: &DomainSpec, geo: &Geometry) {
-        let s = StaticGeometry::<T>::derive(d, geo, self.id);
+        let s = StaticGeometry::<T>::derive(d, geo, self.id, self.pattern);
         let same_moving = s.links.moving.len() == self.links.moving.len()
             && s.links
                 .moving
@@ -444,9 +466,9 @@ impl<T: Real> Block<T> {
         n
     }
 
-    /// Bytes of PDF storage (both fields).
+    /// Bytes of PDF storage (all fields).
     pub fn pdf_bytes(&self) -> usize {
-        2 * self.layout.len() * std::mem::size_of::<T>()
+        self.fields.len() * self.layout.len() * std::mem::size_of::<T>()
     }
 }
 

@@ -2,16 +2,19 @@
 //! exchange, boundary, stream + collide. Each is a function of one block (and, for the exchange, the
 //! sending block's data), so the scheduler can run them as tasks.
 //!
-//! State convention: between steps a block holds *post-collision* PDFs. A step is
-//! exchange (fill ghost layers from the neighbours) → boundary (write bounce-back values into wall cells)
-//! → pull-stream + collide into the other field (the two fields alternate with the step's parity). This is Algorithm 1's collide → communicate →
-//! boundary → stream with the cycle cut after the collision.
+//! State convention: between steps a block holds *post-collision* PDFs, each population f*_q(x) at the
+//! element its streaming pattern and the step's parity name ([`Block::slots`]). A step is exchange (fill
+//! ghost cells' populations from the neighbours) → boundary (write bounce-back values for the wall cells)
+//! → stream + collide (pull: into the other field; AA: in place). This is Algorithm 1's collide →
+//! communicate → boundary → stream with the cycle cut after the collision. Every stage below reads and
+//! writes populations through the slot map only, so pull and AA do the same arithmetic on the same
+//! physical state.
 
 use crate::config::KernelChoice;
 use crate::physics::block::{ghost_ranges, source_ranges, Block, GhostRecv};
 use blockflow_kernels::d3q19::Q;
 use blockflow_kernels::sweep::{self, SweepStats};
-use blockflow_kernels::{Real, TrtParams};
+use blockflow_kernels::{Pattern, Real, TrtParams};
 
 /// Packs the PDFs the receiver's ghost region at offset `off` needs from field `p` of `sender`
 /// (directions `dirs`, interior layer next to the shared face/edge) into `buf`, row by row: the message
@@ -20,14 +23,15 @@ pub fn pack<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize],
     buf.clear();
     let l = &sender.layout;
     let f = sender.field(p).raw();
+    let sl = sender.slots(p);
     let [rx, ry, rz] = source_ranges(l, off);
     let n = rx.end() - rx.start() + 1;
     for &q in dirs {
-        let base = q * l.stride;
         for z in rz.clone() {
             for y in ry.clone() {
-                let i = base + l.idx(*rx.start(), y, z);
-                // SAFETY: interior cells of the sender's field; no task writes them concurrently (graph).
+                let i = sl.at(q, l.idx(*rx.start(), y, z));
+                // SAFETY: populations of the sender's interior cells; no task writes them concurrently
+                // (graph).
                 unsafe {
                     if n == 1 {
                         buf.push(*f.add(i)); // x faces: one strided element per row, no memcpy call
@@ -44,16 +48,16 @@ pub fn pack<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize],
 pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], buf: &[T]) {
     let l = receiver.layout;
     let f = receiver.field(p).raw();
+    let sl = receiver.slots(p);
     let [rx, ry, rz] = ghost_ranges(&l, off);
     let n = rx.end() - rx.start() + 1;
     let mut k = 0;
     for &q in dirs {
-        let base = q * l.stride;
         for z in rz.clone() {
             for y in ry.clone() {
-                let i = base + l.idx(*rx.start(), y, z);
+                let i = sl.at(q, l.idx(*rx.start(), y, z));
                 assert!(k + n <= buf.len(), "message shorter than the ghost region");
-                // SAFETY: ghost cells of the receiver, written only by this task (graph).
+                // SAFETY: populations of the receiver's ghost cells, written only by this task (graph).
                 unsafe { copy_run(buf.as_ptr().add(k), f.add(i), n) };
                 k += n;
             }
@@ -66,19 +70,19 @@ pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usi
 /// straight into the receiver's ghost cells that feed its fluid (field `p` of both; the two may be the
 /// same block on a periodic axis: the regions are disjoint).
 pub fn copy_ghost<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usize, g: &GhostRecv) {
-    let stride = receiver.layout.stride;
     let src = sender.field(p).raw();
     let dst = receiver.field(p).raw();
+    let (ss, ds) = (sender.slots(p), receiver.slots(p));
     for (k, &q) in g.directions.iter().enumerate() {
-        let base = q * stride;
         let runs = &g.runs[g.run_starts[k] as usize..g.run_starts[k + 1] as usize];
         for r in runs {
-            // SAFETY: interior source cells and ghost destination cells never overlap; the graph orders
-            // this copy after the sender's sweep and before anything else touches these elements.
+            // SAFETY: the populations of interior source cells and of ghost destination cells never share
+            // an element; the graph orders this copy after the sender's sweep and before anything else
+            // touches these elements.
             unsafe {
                 copy_run(
-                    src.add(base + r.src as usize),
-                    dst.add(base + r.dst as usize),
+                    src.add(ss.at(q, r.src as usize)),
+                    dst.add(ds.at(q, r.dst as usize)),
                     r.len as usize,
                 )
             };
@@ -92,15 +96,15 @@ pub fn copy_ghost_region<T: Real>(sender: &Block<T>, receiver: &Block<T>, p: usi
     let l = receiver.layout;
     let src = sender.field(p).raw();
     let dst = receiver.field(p).raw();
+    let (ss, ds) = (sender.slots(p), receiver.slots(p));
     let [sx, sy, sz] = source_ranges(&l, off);
     let [gx, gy, gz] = ghost_ranges(&l, off);
     let n = sx.end() - sx.start() + 1;
     for &q in dirs {
-        let base = q * l.stride;
         for (zs, zg) in sz.clone().zip(gz.clone()) {
             for (ys, yg) in sy.clone().zip(gy.clone()) {
-                let i = base + l.idx(*sx.start(), ys, zs);
-                let j = base + l.idx(*gx.start(), yg, zg);
+                let i = ss.at(q, l.idx(*sx.start(), ys, zs));
+                let j = ds.at(q, l.idx(*gx.start(), yg, zg));
                 // SAFETY: as in `copy_ghost`.
                 unsafe { copy_run(src.add(i), dst.add(j), n) };
             }
@@ -122,28 +126,49 @@ unsafe fn copy_run<T: Real>(src: *const T, dst: *mut T, n: usize) {
     }
 }
 
-/// Boundary pass (eq. 6 with δ_q = 1/2) on field `p`: writes the bounce-back values of all links into
-/// the wall cells.
+/// Boundary pass (eq. 6 with δ_q = 1/2) on the state of parity `p`: writes the bounce-back values of all
+/// links, the wall cells' populations.
 pub fn boundary<T: Real>(b: &Block<T>, p: usize) {
     let f = b.field(p);
-    // SAFETY: writes wall elements and reads fluid elements of this block's field p; the graph runs no
-    // conflicting task on them concurrently.
-    unsafe { b.links.apply_raw(f.raw(), f.layout.len()) }
+    // SAFETY: writes wall cells' populations and reads fluid cells' populations of this block's state p;
+    // the graph runs no conflicting task on them concurrently.
+    unsafe { b.links.apply_raw(f.raw(), f.layout.len(), p) }
 }
 
-/// Pull-stream (eq. 4) and collide (eq. 2) every fluid cell of the block from field `p` into field
-/// `1 - p`. Fused and split kernels give identical bits.
+/// Stream (eq. 4) and collide (eq. 2) every fluid cell of the block from the state of parity `p` to the
+/// next: under pull from field `p` into field `1 - p` (fused and split kernels give identical bits), under
+/// AA in place (`kernel` does not apply: the AA step is fused).
 ///
 /// # Safety
-/// No other task may access field `1 - p` of this block or write field `p` while this runs.
+/// No other task may access this block's fields while this runs, except reading the state of parity `p`
+/// under pull (the graph orders them).
 pub unsafe fn stream_collide<T: Real>(b: &Block<T>, p: usize, params: &TrtParams, kernel: KernelChoice) -> SweepStats {
-    let src = b.field(p);
-    let dst = b.field_mut(1 - p);
-    match kernel {
-        KernelChoice::Fused => sweep::stream_collide(src, dst, b.fluid_segments(), params),
-        KernelChoice::Split => {
-            sweep::stream(src, dst, b.fluid_segments());
-            sweep::collide(dst, b.fluid_segments(), params)
+    sweep_runs(b, p, b.fluid_segments(), params, kernel)
+}
+
+/// The sweep of [`stream_collide`] over the runs `segs`.
+///
+/// # Safety
+/// As for [`stream_collide`].
+unsafe fn sweep_runs<T: Real>(
+    b: &Block<T>,
+    p: usize,
+    segs: &[blockflow_kernels::Segment],
+    params: &TrtParams,
+    kernel: KernelChoice,
+) -> SweepStats {
+    match b.pattern {
+        Pattern::Aa => sweep::aa_step(b.field_mut(p), p as u64, segs, params),
+        Pattern::Pull => {
+            let src = b.field(p);
+            let dst = b.field_mut(1 - p);
+            match kernel {
+                KernelChoice::Fused => sweep::stream_collide(src, dst, segs, params),
+                KernelChoice::Split => {
+                    sweep::stream(src, dst, segs);
+                    sweep::collide(dst, segs, params)
+                }
+            }
         }
     }
 }
@@ -162,26 +187,27 @@ pub fn boundary_general<T: Real>(b: &Block<T>, p: usize) {
 }
 
 /// The general path of [`stream_collide`] (`run.no_skip`): the fluid runs are found by visiting every
-/// interior cell's flag (and particle owner) instead of the runs mapped once, and the unfused kernels
-/// run (pull-stream, then collide in place) instead of the fused one. A block without fluid visits its
-/// cells and sweeps nothing. Same bits as [`stream_collide`] (the kernels' sweeps do not depend on where
-/// a run starts, and the fused kernel equals stream followed by collide bit for bit).
+/// interior cell's flag (and particle owner) instead of the runs mapped once, and under pull the unfused
+/// kernels run (pull-stream, then collide in place) instead of the fused one. A block without fluid
+/// visits its cells and sweeps nothing. Same bits as [`stream_collide`] (the kernels' sweeps do not depend
+/// on where a run starts, and the fused kernel equals stream followed by collide bit for bit).
 ///
 /// # Safety
 /// As for [`stream_collide`].
 pub unsafe fn stream_collide_general<T: Real>(b: &Block<T>, p: usize, params: &TrtParams) -> SweepStats {
     let mut runs = Vec::new();
     b.scan_fluid_runs(&mut runs);
-    let src = b.field(p);
-    let dst = b.field_mut(1 - p);
-    sweep::stream(src, dst, &runs);
-    sweep::collide(dst, &runs, params)
+    sweep_runs(b, p, &runs, params, KernelChoice::Split)
 }
 
-/// δρ and u of the stored (post-collision) state of element `i` of field `p`.
+/// The post-collision populations of the cell at element `i` in the state of parity `p`.
+pub fn post_cell<T: Real>(b: &Block<T>, p: usize, i: usize) -> [T; Q] {
+    b.field(p).post_cell(b.slots(p), i)
+}
+
+/// δρ and u of the stored (post-collision) state of the cell at element `i` in the state of parity `p`.
 pub fn cell_moments<T: Real>(b: &Block<T>, p: usize, i: usize, force: [f64; 3]) -> (f64, [f64; 3]) {
-    let f: [T; Q] = b.field(p).cell(i);
-    blockflow_kernels::trt::moments(&f, force)
+    blockflow_kernels::trt::moments(&post_cell(b, p, i), force)
 }
 
 /// The bad cell of field `p` (density or velocity non-finite, or |u| above `limit`) at the centre of the

@@ -12,7 +12,7 @@ use crate::physics::geometry::Geometry;
 use blockflow_kernels::d3q19::Q;
 use blockflow_kernels::sweep::SweepStats;
 use blockflow_kernels::trt::post_collision_equilibrium;
-use blockflow_kernels::{Real, TrtParams};
+use blockflow_kernels::{Pattern, Real, TrtParams};
 
 /// Global diagnostics of the fluid (sums in block order, so they do not depend on who computed what).
 #[derive(Clone, Copy, Debug, Default)]
@@ -69,17 +69,18 @@ pub struct Simulation<T: Real> {
 }
 
 impl<T: Real> Simulation<T> {
-    /// Builds all blocks from the geometry, at rest.
+    /// Builds all blocks from the geometry (fields streamed by `pattern`), at rest.
     pub fn new(
         domain: DomainSpec,
         geo: &Geometry,
         params: TrtParams,
         velocity_limit: f64,
         kernel: KernelChoice,
+        pattern: Pattern,
         coupling: CouplingParams,
     ) -> Self {
         let blocks = (0..domain.num_blocks())
-            .map(|id| Block::new(&domain, geo, id))
+            .map(|id| Block::new(&domain, geo, id, pattern))
             .collect();
         Simulation {
             domain,
@@ -173,11 +174,11 @@ impl<T: Real> Simulation<T> {
         let p = self.parity();
         let mut sum = 0u64;
         for b in &self.blocks {
-            let f = b.field(p);
+            let (f, sl) = (b.field(p), b.slots(p));
             b.for_each_fluid(|g, i| {
                 let mut h = crate::util::hash::mix(0x5bd1_e995 ^ (g[0] + n[0] * (g[1] + n[1] * g[2])) as u64);
                 for q in 0..Q {
-                    h = crate::util::hash::mix(h ^ f.get(q, i).bits());
+                    h = crate::util::hash::mix(h ^ f.data()[sl.at(q, i)].bits());
                 }
                 sum = sum.wrapping_add(h);
             });

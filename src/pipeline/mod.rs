@@ -69,7 +69,7 @@ use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
 use accounting::LastRun;
 use blockflow_kernels::sweep::SweepStats;
-use blockflow_kernels::Real;
+use blockflow_kernels::{Pattern, Real};
 use blockflow_scheduler::executor::Executor;
 use blockflow_scheduler::trace::{TracePart, TraceWriter};
 use blockflow_scheduler::{GraphBuilder, TaskGraph};
@@ -218,15 +218,22 @@ impl<T: Real> Pipeline<T> {
         let owners = &self.owners;
         self.exec.on_each_process(|p| {
             for b in sim.blocks.iter().filter(|b| owners[b.id] == p) {
-                // SAFETY: each block is touched by exactly one process's thread, nothing else runs.
-                let f = unsafe { b.field_mut(1) };
-                let src = b.field(0);
-                for s in &b.segments {
-                    for q in 0..blockflow_kernels::d3q19::Q {
-                        for i in s.start..s.start + s.len {
-                            f.set(q, i, src.get(q, i));
+                match b.pattern {
+                    Pattern::Pull => {
+                        // SAFETY: each block is touched by exactly one process's thread, nothing else runs.
+                        let f = unsafe { b.field_mut(1) };
+                        let src = b.field(0);
+                        for s in &b.segments {
+                            for q in 0..blockflow_kernels::d3q19::Q {
+                                for i in s.start..s.start + s.len {
+                                    f.set(q, i, src.get(q, i));
+                                }
+                            }
                         }
                     }
+                    // The one field was written by the initialisation; copying it into pages mapped here
+                    // would need a second field for a moment, the memory AA saves.
+                    Pattern::Aa => {}
                 }
             }
         });

@@ -24,11 +24,12 @@
 //!
 //! Sections:
 //! - `pdf` (only for a block with fluid cells): the post-collision PDFs of the *interior* cells of the
-//!   current field (`fields[step % 2]`), zero-centred as stored (`f_q − w_q`), in the precision of the
+//!   current state, f*_q(x) wherever the streaming pattern keeps it (so pull and AA runs write the same
+//!   bytes and restart each other), zero-centred as stored (`f_q − w_q`), in the precision of the
 //!   header: direction q = 0..19 slowest, then z, y, x fastest (x, y, z = 1..=n). Cells that are not fluid
 //!   now (walls, cells covered by a particle) are written as 0: their values are dead (the next step's
 //!   boundary passes and reconstruction rewrite every one that is read), and zeroing them makes the
-//!   bytes a function of the live state only. No ghost layer: the next step's exchange fills it. The
+//!   bytes a function of the live state only. No ghost layer: the next step's exchange fills it. Pull's
 //!   other field is not carried either: the next step overwrites every cell of it that is ever read.
 //! - `flags`: the flag byte of every cell *with* its ghost layer, x fastest. Flags are static geometry; the
 //!   decoder does not write them but checks them against the block it decodes into (`Mismatch`).

@@ -405,9 +405,9 @@ pub unsafe fn decode_block<T: Real>(sim: &Simulation<T>, id: usize, bytes: &[u8]
             ))
         }
     };
-    // PDFs into fresh fields, first touched here.
+    // PDFs into fresh fields, first touched here (pull's other field only when the pattern has one).
     let mut cur = blk.fresh_field(p);
-    let mut other = blk.fresh_field(1 - p);
+    let mut other = (blk.pattern.fields() == 2).then(|| blk.fresh_field(1 - p));
     match get(PDF) {
         Some(s) => {
             let [nx, ny, nz] = l.size;
@@ -423,15 +423,17 @@ pub unsafe fn decode_block<T: Real>(sim: &Simulation<T>, id: usize, bytes: &[u8]
                     nx * ny * nz
                 )));
             }
-            other.data_mut().fill(T::ZERO);
-            let stride = l.stride;
+            if let Some(o) = other.as_mut() {
+                o.data_mut().fill(T::ZERO);
+            }
+            let sl = *blk.slots(p);
             let data = cur.data_mut();
             data.fill(T::ZERO);
             let mut chunks = s.chunks_exact(T::BYTES);
             for q in 0..Q {
                 for z in 1..=nz {
                     for y in 1..=ny {
-                        let start = q * stride + l.idx(1, y, z);
+                        let start = sl.at(q, l.idx(1, y, z));
                         for (v, c) in data[start..start + nx].iter_mut().zip(&mut chunks) {
                             *v = real_from_le::<T>(c);
                         }
@@ -451,7 +453,9 @@ pub unsafe fn decode_block<T: Real>(sim: &Simulation<T>, id: usize, bytes: &[u8]
     }
     // Commit.
     blk.replace_field(p, cur);
-    blk.replace_field(1 - p, other);
+    if let Some(o) = other {
+        blk.replace_field(1 - p, o);
+    }
     blk.replace_particle_cells(overlay);
     if let (Some(parts), Some((list, work))) = (&sim.particles, particle) {
         let pb = &parts.blocks[id];

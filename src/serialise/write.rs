@@ -57,6 +57,7 @@ fn write_pdf<T: Real>(s: &mut impl Sink, b: &Block<T>, p: usize) {
         return;
     }
     let data = b.field(p).data();
+    let sl = b.slots(p);
     let segs = b.fluid_segments();
     let zero = T::ZERO.bits().to_le_bytes();
     let mut row = Vec::with_capacity(nx * T::BYTES);
@@ -73,7 +74,7 @@ fn write_pdf<T: Real>(s: &mut impl Sink, b: &Block<T>, p: usize) {
                     for _ in x..seg.start {
                         row.extend_from_slice(&zero[..T::BYTES]);
                     }
-                    let at = q * l.stride + seg.start;
+                    let at = sl.at(q, seg.start);
                     for v in &data[at..at + seg.len] {
                         row.extend_from_slice(&v.bits().to_le_bytes()[..T::BYTES]);
                     }

@@ -35,6 +35,7 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
         scene.params,
         cfg.fluid.velocity_limit,
         cfg.fluid.kernel,
+        cfg.fluid.streaming.pattern(),
         coupling,
     );
     if let Some(ps) = scene.particles.as_ref().filter(|_| cfg.particles.enabled) {

@@ -13,7 +13,8 @@ const LISTED_INTERVALS: usize = 12;
 /// blocks, each part's share of the task CPU time, the observables, the checksums and the files.
 pub fn recap(s: &Summary, cfg: &Config, dir: &Path) -> String {
     let mut text = format!(
-        "{}: {} steps, {} fluid cells in {} blocks, {} x {} threads, {:.2} s, {:.1} MLUPS ({})\n",
+        "{}: {} steps, {} fluid cells in {} blocks, {} x {} threads, {:.2} s, {:.1} MLUPS ({}, {} streaming, \
+         PDFs {:.1} MB)\n",
         s.scene,
         s.steps,
         s.fluid_cells,
@@ -22,7 +23,9 @@ pub fn recap(s: &Summary, cfg: &Config, dir: &Path) -> String {
         s.threads_per_process,
         s.wall_seconds,
         s.mlups,
-        s.precision
+        s.precision,
+        s.streaming,
+        s.pdf_bytes as f64 / 1e6
     );
     if let Some(line) = imbalance_line(s, cfg) {
         text += &line;

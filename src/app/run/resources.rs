@@ -3,6 +3,7 @@
 use crate::config::{Config, Precision};
 use crate::error::{Error, Result};
 use crate::scenes::{self, Scene};
+use blockflow_kernels::Layout;
 
 /// Bytes available to a new allocation: the smallest of `MemAvailable` (/proc/meminfo), the cgroup v2
 /// `memory.max` and four fifths of the soft `RLIMIT_AS` (None where /proc/meminfo cannot be read).
@@ -35,7 +36,8 @@ pub fn available_memory() -> Option<u128> {
 pub struct MemoryEstimate {
     /// Everything, bytes.
     pub total: u128,
-    /// PDFs: two fields of 19 values per cell with the ghost layer, in the precision.
+    /// PDFs: per block one field (AA streaming) or two (pull) of 19 padded arrays over the cells with
+    /// the ghost layer, in the precision.
     pub pdf: u128,
     /// Flags: one byte per cell with the ghost layer.
     pub flags: u128,
@@ -49,12 +51,14 @@ pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<MemoryEstimate> {
     let d = scenes::domain_for(&cfg.domain, scene)?;
     let blocks: u128 = d.blocks.iter().map(|&x| x as u128).product();
     let full: u128 = d.block_size.iter().map(|&x| x as u128 + 2).product();
-    let bytes: u128 = match cfg.fluid.precision {
-        Precision::F64 => 8,
-        Precision::F32 => 4,
+    // One field exactly as a block allocates it (rows padded, arrays page-rounded and skewed).
+    let field: u128 = match cfg.fluid.precision {
+        Precision::F64 => 8 * Layout::new::<f64>(d.block_size).len() as u128,
+        Precision::F32 => 4 * Layout::new::<f32>(d.block_size).len() as u128,
     };
     let fluid = cfg.fluid.enabled && !scene.geometry.no_fluid;
-    let pdf = if fluid { 2 * 19 * blocks * full * bytes } else { 0 };
+    let fields = cfg.fluid.streaming.pattern().fields() as u128;
+    let pdf = if fluid { fields * blocks * field } else { 0 };
     let flags = blocks * full;
     let particles = match scene.particles.as_ref().filter(|_| cfg.particles.enabled) {
         Some(ps) => {

@@ -18,7 +18,7 @@ use glam::DVec3;
 /// the incompressible model.
 ///
 /// # Safety
-/// No other task may access field `p` of this block concurrently.
+/// No other task may access this block's state of parity `p` concurrently.
 pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, p: usize, params: &TrtParams) {
     pc.exchanged.clear();
     if pc.turned.is_empty() && pc.covered.is_empty() {
@@ -26,6 +26,7 @@ pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut Partic
     }
     let l = b.layout;
     let f = b.field_mut(p);
+    let sl = *b.slots(p);
     let mut add = |id: u64, x: usize, j: DVec3| {
         let Ok(k) = pc.bodies.binary_search_by_key(&id, |m| m.id) else {
             return;
@@ -51,7 +52,7 @@ pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut Partic
     };
     // A covered cell's fluid momentum ρ0 u goes to the body that covers it.
     for &(i, id) in &pc.covered {
-        let cell: [T; Q] = f.cell(i);
+        let cell: [T; Q] = f.post_cell(&sl, i);
         let (_, u) = moments(&cell, params.force);
         add(id, i, RHO0 * DVec3::from(u));
     }
@@ -65,7 +66,7 @@ pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut Partic
             let [x, y, z] = l.coords(t);
             let interior = x >= 1 && y >= 1 && z >= 1 && x < fx - 1 && y < fy - 1 && z < fz - 1;
             if interior && b.flags[t] & flags::FLUID != 0 && pc.owner[t] == 0 && !turned.contains(&t) {
-                let cell: [T; Q] = f.cell(t);
+                let cell: [T; Q] = f.post_cell(&sl, t);
                 sum += moments(&cell, params.force).0;
                 count += 1;
             }
@@ -81,7 +82,7 @@ pub unsafe fn reconstruct<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut Partic
         };
         let eq = post_collision_equilibrium(drho, u.to_array(), params);
         let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(eq[q]));
-        f.set_cell(i, &cell);
+        f.set_post_cell(&sl, i, &cell);
         // ... and a rebuilt cell's momentum comes from the body that left it.
         let (_, u_new) = moments(&cell, params.force);
         add(id, i, -RHO0 * DVec3::from(u_new));
@@ -104,7 +105,7 @@ mod tests {
             block_size: [10, 10, 10],
             periodic: [true; 3],
         };
-        let mut blk = Block::<f64>::new(&d, &Geometry::default(), 0);
+        let mut blk = Block::<f64>::new(&d, &Geometry::default(), 0, blockflow_kernels::Pattern::Pull);
         let params = TrtParams {
             tau: 0.8,
             magic: 3.0 / 16.0,

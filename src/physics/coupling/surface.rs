@@ -21,7 +21,7 @@ use glam::DVec3;
 /// How many link cells ahead the boundary pass asks for PDFs.
 const PREFETCH_AHEAD: usize = 8;
 
-/// Boundary pass at the particle surfaces on field `p` (eq. 6, CLI or simple bounce-back by `mode`),
+/// Boundary pass at the particle surfaces on the state of parity `p` (eq. 6, CLI or simple bounce-back by `mode`),
 /// writing the reflected PDFs into the particle cells, and the momentum exchange (eqs. 7–9) summed per
 /// body in link order (cells in order, directions ascending) into `pc.forces`. Each link of a link cell
 /// gets its body from the owner of x_f + c_q, δ_q from the ray–sphere intersection when `mode` asks for
@@ -29,11 +29,12 @@ const PREFETCH_AHEAD: usize = 8;
 /// boundary velocity v_b at x_b = x_f + δ_q c_q (below eq. 6).
 ///
 /// # Safety
-/// Writes particle cells and reads fluid cells (ghosts included) of field `p`; no other task may write
+/// Writes particle cells and reads fluid cells (ghosts included) of the state of parity `p`; no other task may write
 /// them concurrently.
 pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, p: usize, mode: SurfaceBoundary) {
     let l = b.layout;
     let data = b.field(p).raw();
+    let sl = *b.slots(p);
     let mut acc = vec![(DVec3::ZERO, DVec3::ZERO); pc.bodies.len()];
     for e in &pc.exchanged {
         if let Ok(k) = pc.bodies.binary_search_by_key(&e.id, |m| m.id) {
@@ -57,7 +58,7 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
         for (j, &(q, solid, k)) in slots[..batch.len].iter().enumerate() {
             let q = q as usize;
             let stored = T::from_f64(batch.f_in[j]);
-            *data.add(OPP[q] * l.stride + solid as usize) = stored;
+            *data.add(sl.at(OPP[q], solid as usize)) = stored;
             let v_b = DVec3::new(batch.v_b[0][j], batch.v_b[1][j], batch.v_b[2][j]);
             let rel_b = DVec3::new(batch.rel_b[0][j], batch.rel_b[1][j], batch.rel_b[2][j]);
             let force = momentum_exchange(q, batch.f_out[j], stored.to_f64(), v_b);
@@ -79,10 +80,10 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
                 let q = dirs.trailing_zeros() as usize;
                 dirs &= dirs - 1;
                 let (solid, second) = ((i as isize + offs[q]) as usize, (i as isize - offs[q]) as usize);
-                prefetch(data.add(q * l.stride + i));
-                prefetch(data.add(OPP[q] * l.stride + i));
-                prefetch(data.add(q * l.stride + second));
-                prefetch(data.add(OPP[q] * l.stride + solid));
+                prefetch(data.add(sl.at(q, i)));
+                prefetch(data.add(sl.at(OPP[q], i)));
+                prefetch(data.add(sl.at(q, second)));
+                prefetch(data.add(sl.at(OPP[q], solid)));
                 prefetch(owner.as_ptr().add(solid));
                 prefetch(owner.as_ptr().add(second));
                 prefetch(b.flags.as_ptr().add(second));
@@ -124,11 +125,11 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
             batch.w12[n] = W12[q];
             batch.w6[n] = W6[q];
             batch.cli[n] = cli;
-            batch.f_out[n] = (*data.add(q * l.stride + i)).to_f64();
+            batch.f_out[n] = (*data.add(sl.at(q, i))).to_f64();
             (batch.f_opp[n], batch.f_second[n]) = if cli {
                 (
-                    (*data.add(OPP[q] * l.stride + i)).to_f64(),
-                    (*data.add(q * l.stride + second)).to_f64(),
+                    (*data.add(sl.at(OPP[q], i))).to_f64(),
+                    (*data.add(sl.at(q, second))).to_f64(),
                 )
             } else {
                 (0.0, 0.0)
