@@ -3,15 +3,21 @@
 //! assignment, and re-armed for every run; inside a run, a block may start step t+1 while a distant block
 //! still works on step t.
 //!
-//! Tasks per block `b` with fluid and step `s` (parity `p = s % 2`: the state is read from field `p`, the
-//! new state written to field `1 - p`):
+//! Tasks per block `b` with fluid and step `s` (parity `p = s % 2`: the state of parity p is read; under
+//! pull streaming it is field `p` and the new state goes to field `1 - p`, under AA the one field is
+//! updated in place). "Cells" below are the cells whose post-collision populations are meant; where
+//! they are stored is the pattern's slot map ([`blockflow_kernels::Slots`]), one element per (cell,
+//! direction) in each state, so tasks on the same state conflict exactly as under pull. The one task on
+//! two states is the sweep; the AA sweep writes state p + 1 into the elements that held the incoming
+//! populations f*_q(x − c_q) of b's fluid cells in state p, which only b's own earlier tasks of step s
+//! read (boundary passes, reconstruction, `send`), so the edges below serve both patterns:
 //!
 //! | task | reads | writes |
 //! |---|---|---|
-//! | `send(b,s)` (only if a receiver lives in another process) | `b.field[p]` interior layers | message slots |
-//! | `comm(b,s)` | senders' `field[p]` layers (same process) or slots (other process) | `b.field[p]` ghost cells |
-//! | `boundary(b,s)` (only with links) | `b.field[p]` fluid cells | `b.field[p]` wall cells |
-//! | `sweep(b,s)` | `b.field[p]` | `b.field[1-p]` fluid cells |
+//! | `send(b,s)` (only if a receiver lives in another process) | state p of b's interior layers | message slots |
+//! | `comm(b,s)` | senders' state p layers (same process) or slots (other process) | state p of b's ghost cells |
+//! | `boundary(b,s)` (only with links) | state p of b's fluid cells | state p of b's wall cells |
+//! | `sweep(b,s)` | state p of b | state p + 1 of b's fluid cells (pull: field `1 - p`; AA: in place) |
 //! | `static_map(b,s)` (only with `run.no_skip`) | the scene geometry, b's flags and links | nothing |
 //!
 //! Skip rules (DESIGN.md principle 2) and what `run.no_skip` (measurement only; the results stay bitwise
