@@ -92,8 +92,8 @@ fn total_momentum(sim: &Simulation<f64>) -> (DVec3, f64) {
     (p, scale)
 }
 
-/// A sphere moving through a closed periodic box of fluid (no gravity, no body force): the momentum of
-/// fluid plus particle is conserved. Streaming, collision and the momentum exchange conserve it to
+/// A sphere moving through a closed periodic box of fluid (no gravity, no body force): with
+/// `particles.conserve_momentum` the momentum of fluid plus particle is conserved. Streaming, collision and the momentum exchange conserve it to
 /// rounding; cells the sphere covers hand their fluid momentum to it and rebuilt cells take theirs from
 /// it, which balances it up to the density a rebuilt cell gets, hence a bound of 1e-3 of the initial
 /// momentum over 600 steps (measured 1.1e-4), checked every 50 steps.
@@ -101,7 +101,7 @@ fn total_momentum(sim: &Simulation<f64>) -> (DVec3, f64) {
 fn fluid_plus_particle_momentum_is_conserved_in_a_periodic_box() {
     let c = box_config(
         "[domain]\nblocks = [2, 2, 2]\nblock_size = [16, 16, 16]\nperiodic = [true, true, true]\n[fluid]\ntau = 0.6\n\
-         [scene]\nkind = \"box\"\nspheres = [{ centre = [12.3, 15.7, 16.2], radius = 4.5, density = 1.5, \
+         [particles]\nconserve_momentum = true\n[scene]\nkind = \"box\"\nspheres = [{ centre = [12.3, 15.7, 16.2], radius = 4.5, density = 1.5, \
          velocity = [0.03, 0.01, 0.0] }]\n",
     );
     let mut tl = timeloop_of(&c);

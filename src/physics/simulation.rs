@@ -34,6 +34,8 @@ pub struct CouplingParams {
     pub surface: SurfaceBoundary,
     /// Average the hydrodynamic force over the current and the previous step (`particles.force_averaging`).
     pub force_averaging: bool,
+    /// Pass the momentum of covered and uncovered cells to the bodies (`particles.conserve_momentum`).
+    pub conserve_momentum: bool,
 }
 
 impl Default for CouplingParams {
@@ -41,6 +43,7 @@ impl Default for CouplingParams {
         CouplingParams {
             surface: SurfaceBoundary::Cli,
             force_averaging: true,
+            conserve_momentum: false,
         }
     }
 }

@@ -62,7 +62,14 @@ impl<T: Real> Dispatch<'_, T> {
             TaskKind::Reconstruct => {
                 // Reconstruct writes b's field p before anyone reads it this step.
                 if b.particle_cells().is_some() {
-                    coupling::reconstruct(&sim.domain, b, b.particle_cells_mut(), p, &sim.params)
+                    coupling::reconstruct(
+                        &sim.domain,
+                        b,
+                        b.particle_cells_mut(),
+                        p,
+                        &sim.params,
+                        sim.coupling.conserve_momentum,
+                    )
                 }
             }
             TaskKind::Forces => {

@@ -28,6 +28,7 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
     let coupling = CouplingParams {
         surface: cfg.particles.boundary,
         force_averaging: cfg.particles.force_averaging,
+        conserve_momentum: cfg.particles.conserve_momentum,
     };
     let mut sim = Simulation::<T>::new(
         domain,
