@@ -272,6 +272,37 @@ fn physical(s: &SettlingSphereConfig) -> Result<(Physical, Option<TenCateCase>)>
     Ok((p, reference))
 }
 
+/// The noise of the raw settling speed, relative to its peak: the RMS of the raw fall speed minus its running
+/// mean over the steps the sphere takes to fall one cell at the peak speed, over the middle half of the
+/// fall up to the peak (what the one-cell average of [`peak_settling_speed`] removes). 0 for a trace too
+/// short to tell.
+pub fn velocity_noise(traj: &[(f64, Body)]) -> f64 {
+    let v: Vec<f64> = traj.iter().map(|(_, b)| -b.velocity.z).collect();
+    let Some((ip, &peak)) = v.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)) else {
+        return 0.0;
+    };
+    if peak <= 0.0 || ip < 8 {
+        return 0.0;
+    }
+    // Samples per step (the trajectory has one per step) and steps per cell at the peak.
+    // An odd window, centred: the mean of a linear trend over it is its value at the centre.
+    let w = ((1.0 / peak).round() as usize).clamp(1, ip / 4) | 1;
+    let (lo, hi) = ((ip / 4).max(w), (3 * ip / 4).min(v.len().saturating_sub(w)));
+    let mut sum2 = 0.0;
+    let mut n = 0usize;
+    for i in lo..hi {
+        let start = i - w / 2;
+        let mean = v[start..start + w].iter().sum::<f64>() / w as f64;
+        sum2 += (v[i] - mean).powi(2);
+        n += 1;
+    }
+    if n == 0 {
+        0.0
+    } else {
+        (sum2 / n as f64).sqrt() / peak
+    }
+}
+
 /// The peak settling speed (lattice units) and its time from body-0 samples (time, body): the largest fall
 /// speed averaged over the time the sphere takes to fall one lattice cell, Δz / Δt over the shortest window
 /// ending at a sample with Δz ≥ 1. The raw velocity carries a few per cent of noise at coarse resolutions
@@ -407,11 +438,17 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
     }
     let steps = (steps_f as u64).max(1);
     let planes = wall_planes(cells, [false; 3]);
-    let case_name = s.case.clone();
+    // The case names the run only where the run is that experiment (its fluid, sphere, box and gravity).
+    let case_label = match (&s.case, reference.is_some()) {
+        (Some(c), true) => format!(" (ten Cate {c})"),
+        (Some(c), false) => format!(" (ten Cate {c} changed: not the experiment, no reference speed)"),
+        (None, _) => String::new(),
+    };
     let observe = Box::new(move |v: &dyn super::FluidView| {
         let traj = v.trajectory();
         let (peak, t_peak) = peak_settling_speed(&traj);
         let raw = traj.iter().map(|(_, b)| -b.velocity.z).fold(0.0, f64::max);
+        let noise = velocity_noise(&traj);
         let z = v.bodies().first().map_or(0.0, |b| b.position.z);
         let u = peak * dx / dt;
         let mut o = BTreeMap::from([
@@ -427,11 +464,13 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
             ("final_gap".to_string(), z * dx - 0.5 * d),
             ("dx".to_string(), dx),
             ("dt".to_string(), dt),
+            ("velocity_noise".to_string(), noise),
         ]);
         if let Some(c) = reference {
             let r = c.peak_speed();
             o.insert("reference_velocity".to_string(), r);
             o.insert("relative_error".to_string(), (u - r).abs() / r);
+            o.insert("relative_error_raw".to_string(), (raw * dx / dt - r).abs() / r);
         }
         o
     });
@@ -464,12 +503,7 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
         description: format!(
             "sphere D = {d} m ({} cells), rho_p = {} kg/m3 in rho_f = {} kg/m3, mu = {} Pa s{} (Ga = {galileo:.2}), \
              closed {:?} m box ({cells:?} cells), dx = {dx:.4e} m, dt = {dt:.4e} s, tau = {tau:.5}",
-            s.resolution,
-            p.rho_p,
-            p.rho_f,
-            p.mu,
-            case_name.map_or(String::new(), |c| format!(" (ten Cate {c})")),
-            s.r#box
+            s.resolution, p.rho_p, p.rho_f, p.mu, case_label, s.r#box
         ),
     })
 }
@@ -511,6 +545,30 @@ mod tests {
         assert!((u - 0.05).abs() < 0.002 / 20.0 * 4.0 + 1e-12, "{u}");
         let steady: Vec<(f64, Body)> = (0..100).map(|t| (t as f64, body_at(50.0 - 0.1 * t as f64))).collect();
         assert!((peak_settling_speed(&steady).0 - 0.1).abs() < 1e-12);
+    }
+
+    /// A speed rising linearly to its peak has no noise; an alternating ±a on top of it has a noise of
+    /// a / peak (the running mean over the odd window of about 20 steps per cell leaves one unpaired term
+    /// of the alternation, a / w: a relative tolerance of 1/15).
+    #[test]
+    fn velocity_noise_is_the_rms_about_the_one_cell_mean() {
+        let speed = |t: usize| 0.05 * (t as f64 / 1000.0).min(1.0);
+        let trace = |a: f64| -> Vec<(f64, Body)> {
+            (0..1200)
+                .map(|t| {
+                    let mut b = body_at(0.0);
+                    let wiggle = if t % 2 == 0 { a } else { -a };
+                    b.velocity.z = -(speed(t) + wiggle);
+                    (t as f64, b)
+                })
+                .collect()
+        };
+        assert!(velocity_noise(&trace(0.0)) < 1e-12);
+        let a = 5e-4;
+        let n = velocity_noise(&trace(a));
+        // peak 0.05 + a, steps per cell 1/peak ≈ 20 (even).
+        let want = a / (0.05 + a);
+        assert!((n - want).abs() < want / 15.0, "noise {n}, want {want}");
     }
 
     /// Block counts divide the axis and aim at the target edge; x is never split.
