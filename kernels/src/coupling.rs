@@ -168,6 +168,30 @@ pub fn reconstruct(drho: f64, u: DVec3) -> [f64; Q] {
     crate::trt::equilibrium(drho, u.to_array())
 }
 
+/// The post-collision non-equilibrium part Grad's moment approximation adds to a rebuilt cell (Dorschner
+/// et al. 2015; waLBerla's `GradsMomentApproximationReconstructor`): the pre-collision part
+/// f_q^neq = w_q / (2 c_s⁴) Q_q : Π^neq with Q_q = c_q c_q − c_s² I and the Chapman–Enskog stress
+/// Π^neq = −ρ c_s² τ (∇u + ∇uᵀ), relaxed once by (1 − 1/τ): −(τ − 1) ρ w_q / (2 c_s²) Q_q : (∇u + ∇uᵀ).
+/// `grad_u[a][b]` = ∂_a u_b (lattice units); the even (symmetric) part of the populations, so TRT's ω+ = 1/τ
+/// relaxes it. Its density and momentum are zero (Q_q : S sums to 0 over q for any symmetric S, and the
+/// terms are even in c_q).
+pub fn grad_non_equilibrium(tau: f64, rho: f64, grad_u: [[f64; 3]; 3]) -> [f64; Q] {
+    // S2 = ∇u + ∇uᵀ, and its trace.
+    let s2: [[f64; 3]; 3] = std::array::from_fn(|a| std::array::from_fn(|b| grad_u[a][b] + grad_u[b][a]));
+    let tr = s2[0][0] + s2[1][1] + s2[2][2];
+    std::array::from_fn(|q| {
+        let c = [C[q][0] as f64, C[q][1] as f64, C[q][2] as f64];
+        let mut cc = 0.0;
+        for (a, row) in s2.iter().enumerate() {
+            for (b, v) in row.iter().enumerate() {
+                cc += c[a] * c[b] * v;
+            }
+        }
+        // Q_q : S2 = c·S2·c − c_s² tr S2, c_s² = 1/3; 1/(2 c_s²) = 3/2.
+        -(tau - 1.0) * rho * W[q] * 1.5 * (cc - tr / 3.0)
+    })
+}
+
 /// Index of the opposite direction (re-exported for link code): c_q̄ = −c_q.
 #[inline]
 pub fn opposite(q: usize) -> usize {
@@ -178,6 +202,24 @@ pub fn opposite(q: usize) -> usize {
 mod tests {
     use super::*;
     use crate::trt::{equilibrium, moments};
+
+    /// Grad's non-equilibrium part carries no mass and no momentum, and its second moment is the relaxed
+    /// stress: Σ_q c_qa c_qb f_q = (1 − 1/τ) Π^neq_ab = −(τ − 1) ρ c_s² (∂_a u_b + ∂_b u_a) (to 1e-16).
+    #[test]
+    fn grad_non_equilibrium_moments() {
+        let (tau, rho) = (0.9, 1.02);
+        let g = [[1e-3, -2e-4, 3e-4], [5e-4, -7e-4, 1e-4], [-2e-4, 6e-4, -3e-4]];
+        let f = grad_non_equilibrium(tau, rho, g);
+        let (m, j) = moments(&f, [0.0; 3]);
+        assert!(m.abs() < 1e-17 && j.iter().all(|x| x.abs() < 1e-17));
+        for a in 0..3 {
+            for b in 0..3 {
+                let pi: f64 = (0..Q).map(|q| (C[q][a] * C[q][b]) as f64 * f[q]).sum();
+                let want = -(tau - 1.0) * rho / 3.0 * (g[a][b] + g[b][a]);
+                assert!((pi - want).abs() < 1e-16, "Π[{a}][{b}] = {pi}, want {want}");
+            }
+        }
+    }
 
     fn q_of(c: [i32; 3]) -> usize {
         (0..Q).find(|&q| C[q] == c).unwrap()

@@ -51,10 +51,13 @@ pub struct ParticlesConfig {
     /// Exchange the momentum of cells a body covers or uncovers with that body (fluid plus bodies then
     /// conserve momentum to the refill's rounding). Off by default, as in waLBerla's coupling benchmarks
     /// (`conserveMomentum = false`): the impulse of a cell changing state is a one-step spike of up to
-    /// several times the drag, which at 9 cells per diameter puts 1.2–1.4 % of noise on the settling
+    /// several times the drag, which at 9 cells per diameter puts 1.1–1.3 % of noise on the settling
     /// speed (0.1–0.2 % without) and moves its peak by up to 3 % (`docs/benchmarks.md`).
     #[serde(default)]
     pub conserve_momentum: bool,
+    /// `"equilibrium"` (default) or `"grad"`: how uncovered cells are rebuilt.
+    #[serde(default)]
+    pub refill: Refill,
     /// `false` leaves the scene's bodies out: the fluid runs alone on the same blocks and geometry (to
     /// measure what the bodies cost, `blockflow bench coupled`).
     #[serde(default = "yes")]
@@ -100,6 +103,7 @@ impl Default for ParticlesConfig {
             boundary: Default::default(),
             force_averaging: true,
             conserve_momentum: false,
+            refill: Refill::Equilibrium,
             enabled: true,
         }
     }
@@ -165,6 +169,19 @@ impl ParticlesConfig {
         }
         Ok(())
     }
+}
+
+/// How a cell a body uncovers is given its populations (`particles.refill`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Refill {
+    /// The (forced) equilibrium at the body's surface velocity and the neighbours' mean density
+    /// (Algorithm 6).
+    #[default]
+    Equilibrium,
+    /// The equilibrium plus Grad's non-equilibrium part from the velocity gradient of the fluid
+    /// neighbours (central differences where both neighbours along an axis are fluid, else one-sided).
+    Grad,
 }
 
 /// Boundary condition at particle surfaces (`particles.boundary`).

@@ -3,7 +3,7 @@
 //! block layout. The time step itself is the task graph of `pipeline` (and, as the serial reference,
 //! [`super::serial`]).
 
-use crate::config::{KernelChoice, SurfaceBoundary};
+use crate::config::{KernelChoice, Refill, SurfaceBoundary};
 use crate::error::Instability;
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
@@ -36,6 +36,8 @@ pub struct CouplingParams {
     pub force_averaging: bool,
     /// Pass the momentum of covered and uncovered cells to the bodies (`particles.conserve_momentum`).
     pub conserve_momentum: bool,
+    /// How uncovered cells are rebuilt (`particles.refill`).
+    pub refill: Refill,
 }
 
 impl Default for CouplingParams {
@@ -44,6 +46,7 @@ impl Default for CouplingParams {
             surface: SurfaceBoundary::Cli,
             force_averaging: true,
             conserve_momentum: false,
+            refill: Refill::Equilibrium,
         }
     }
 }

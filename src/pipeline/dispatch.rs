@@ -68,7 +68,10 @@ impl<T: Real> Dispatch<'_, T> {
                         b.particle_cells_mut(),
                         p,
                         &sim.params,
-                        sim.coupling.conserve_momentum,
+                        coupling::Rebuild {
+                            conserve_momentum: sim.coupling.conserve_momentum,
+                            refill: sim.coupling.refill,
+                        },
                     )
                 }
             }

@@ -29,6 +29,7 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
         surface: cfg.particles.boundary,
         force_averaging: cfg.particles.force_averaging,
         conserve_momentum: cfg.particles.conserve_momentum,
+        refill: cfg.particles.refill,
     };
     let mut sim = Simulation::<T>::new(
         domain,

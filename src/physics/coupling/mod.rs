@@ -24,7 +24,7 @@ pub mod surface;
 pub mod tasks;
 
 pub use mapping::{map, map_with};
-pub use reconstruct::reconstruct;
+pub use reconstruct::{reconstruct, Rebuild};
 pub use surface::boundary;
 
 use crate::physics::domain::DomainSpec;

@@ -2,24 +2,38 @@
 //! exchange with the bodies.
 
 use super::cell_offset;
+use crate::config::Refill;
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
 use crate::physics::geometry::flags;
 use crate::physics::particle_cells::{BodyForce, ParticleCells};
-use blockflow_kernels::coupling::{surface_velocity, RHO0};
+use blockflow_kernels::coupling::{grad_non_equilibrium, surface_velocity, RHO0};
 use blockflow_kernels::d3q19::{C, Q};
 use blockflow_kernels::trt::{moments, post_collision_equilibrium};
 use blockflow_kernels::{Real, TrtParams};
 use glam::DVec3;
+
+/// How [`reconstruct`] treats the cells that change state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Rebuild {
+    /// Exchange the momentum of covered and rebuilt cells with the bodies (`particles.conserve_momentum`).
+    pub conserve_momentum: bool,
+    /// Populations of a rebuilt cell (`particles.refill`).
+    pub refill: Refill,
+}
 
 /// Reconstruction (Algorithm 6) of the cells that turned fluid: the (forced) equilibrium with the
 /// surface velocity of the body that left, V + W × (x − X), and the mean δρ of the cell's interior fluid
 /// neighbours that were fluid before; with no such neighbour, ρ = ρ0 (δρ = 0), the reference density of
 /// the incompressible model.
 ///
-/// With `conserve_momentum`, a covered cell's fluid momentum goes to the body that covers it and a rebuilt
-/// cell's momentum is taken from the body that left it (fluid plus bodies conserve momentum exactly);
-/// without, the bodies feel only the momentum exchange at their surface links.
+/// With `how.refill = Grad` the rebuilt cell also gets Grad's non-equilibrium part
+/// ([`grad_non_equilibrium`]) from the velocity gradient: central differences of the neighbours'
+/// velocities where both neighbours along an axis were fluid before, one-sided differences against the
+/// rebuilt cell's own velocity where one was, zero where none was. With `how.conserve_momentum`, a covered
+/// cell's fluid momentum goes to the body that covers it and a rebuilt cell's momentum is taken from the
+/// body that left it (fluid plus bodies conserve momentum); without, the bodies feel only the momentum
+/// exchange at their surface links.
 ///
 /// # Safety
 /// No other task may access this block's state of parity `p` concurrently.
@@ -29,8 +43,9 @@ pub unsafe fn reconstruct<T: Real>(
     pc: &mut ParticleCells,
     p: usize,
     params: &TrtParams,
-    conserve_momentum: bool,
+    how: Rebuild,
 ) {
+    let conserve_momentum = how.conserve_momentum;
     pc.exchanged.clear();
     if pc.turned.is_empty() && pc.covered.is_empty() {
         return;
@@ -94,7 +109,33 @@ pub unsafe fn reconstruct<T: Real>(
             }
             Err(_) => DVec3::ZERO,
         };
-        let eq = post_collision_equilibrium(drho, u.to_array(), params);
+        let mut eq = post_collision_equilibrium(drho, u.to_array(), params);
+        if how.refill == Refill::Grad {
+            // ∂_a u_b from the axis neighbours that were fluid before (interior cells only, as above).
+            let was_fluid = |t: usize| {
+                let [x, y, z] = l.coords(t);
+                let interior = x >= 1 && y >= 1 && z >= 1 && x < fx - 1 && y < fy - 1 && z < fz - 1;
+                interior && b.flags[t] & flags::FLUID != 0 && pc.owner[t] == 0 && !turned.contains(&t)
+            };
+            let vel = |t: usize| DVec3::from(moments(&f.post_cell(&sl, t), params.force).1);
+            let mut grad = [[0.0; 3]; 3];
+            for (a, row) in grad.iter_mut().enumerate() {
+                let mut e = [0i32; 3];
+                e[a] = 1;
+                let (hi, lo) = ((i as isize + l.offset(e)) as usize, (i as isize - l.offset(e)) as usize);
+                let du = match (was_fluid(hi), was_fluid(lo)) {
+                    (true, true) => 0.5 * (vel(hi) - vel(lo)),
+                    (true, false) => vel(hi) - u,
+                    (false, true) => u - vel(lo),
+                    (false, false) => DVec3::ZERO,
+                };
+                *row = du.to_array();
+            }
+            let neq = grad_non_equilibrium(params.tau, RHO0 + drho, grad);
+            for (v, n) in eq.iter_mut().zip(neq) {
+                *v += n;
+            }
+        }
         let cell: [T; Q] = std::array::from_fn(|q| T::from_f64(eq[q]));
         f.set_post_cell(&sl, i, &cell);
         // ... and a rebuilt cell's momentum comes from the body that left it.
@@ -146,7 +187,19 @@ mod tests {
             radius: 2.0,
         }];
         let mut pc = std::mem::take(pc);
-        unsafe { reconstruct(&d, &blk, &mut pc, 0, &params, true) };
+        unsafe {
+            reconstruct(
+                &d,
+                &blk,
+                &mut pc,
+                0,
+                &params,
+                Rebuild {
+                    conserve_momentum: true,
+                    refill: Refill::Equilibrium,
+                },
+            )
+        };
         for (cell, drho_want) in [(lonely, 0.0), (open, 0.01)] {
             let f: [f64; Q] = blk.field(0).cell(cell);
             let (drho, u) = moments(&f, [0.0; 3]);
@@ -161,10 +214,57 @@ mod tests {
         let r2 = cell_offset(&d, blk.origin, l.coords(open), centre);
         let total = -(v + w.cross(r1)) - (v + w.cross(r2));
         assert!((e.force - total).length() < 1e-15);
-        // Without momentum conservation the same cells are rebuilt, bit for bit, and no body is charged.
+        // The cells as rebuilt with momentum conservation, for the comparison below.
         let rebuilt: Vec<[f64; Q]> = [lonely, open].iter().map(|&c| blk.field(0).cell(c)).collect();
+        // Grad's refill adds a non-equilibrium part without mass or momentum: in a shear flow
+        // u_x = 1e-3 y the rebuilt cells keep their moments (to 1e-15) and the open one gets a stress.
+        blk.init(|g| post_collision_equilibrium(0.01, [1e-3 * g[1] as f64, 0.0, 0.0], &params));
+        let want_at = |cell: usize| v + w.cross(cell_offset(&d, blk.origin, l.coords(cell), centre));
+        let mut grad_pc = ParticleCells {
+            owner: pc.owner.clone(),
+            turned: pc.turned.clone(),
+            bodies: pc.bodies.clone(),
+            ..Default::default()
+        };
+        unsafe {
+            reconstruct(
+                &d,
+                &blk,
+                &mut grad_pc,
+                0,
+                &params,
+                Rebuild {
+                    conserve_momentum: false,
+                    refill: Refill::Grad,
+                },
+            )
+        };
+        for (cell, drho_want) in [(lonely, 0.0), (open, 0.01)] {
+            let (drho, u) = moments(&blk.field(0).cell(cell), [0.0; 3]);
+            let want = v + w.cross(cell_offset(&d, blk.origin, l.coords(cell), centre));
+            assert!((drho - drho_want).abs() < 1e-15 && (DVec3::from(u) - want).length() < 1e-15);
+        }
+        let plain = post_collision_equilibrium(0.01, want_at(open).to_array(), &params);
+        let f_open = blk.field(0).cell(open);
+        assert!(
+            f_open.iter().zip(&plain).any(|(a, b)| (a - b).abs() > 1e-7),
+            "no stress added"
+        );
+        // Without momentum conservation the same cells are rebuilt, bit for bit, and no body is charged.
         blk.init(|_| post_collision_equilibrium(0.01, [0.0; 3], &params));
-        unsafe { reconstruct(&d, &blk, &mut pc, 0, &params, false) };
+        unsafe {
+            reconstruct(
+                &d,
+                &blk,
+                &mut pc,
+                0,
+                &params,
+                Rebuild {
+                    conserve_momentum: false,
+                    refill: Refill::Equilibrium,
+                },
+            )
+        };
         assert!(pc.exchanged.is_empty());
         for (k, &c) in [lonely, open].iter().enumerate() {
             let f: [f64; Q] = blk.field(0).cell(c);
