@@ -62,16 +62,21 @@ fn check_segments(layout: &Layout, segs: &[Segment]) {
     }
 }
 
-/// Fused kernel over vector type V, remainder cells with the scalar type V::S.
+/// The collision sweep over vector type V (remainder cells with the scalar type V::S): cell i's population
+/// q is loaded from `lp[q] + i` and its post-collision value stored to `sp[q] + i`. The kernels differ only
+/// in these pointers (offsets folded in): fused pull `lp[q] = src_q − off_q`, `sp[q] = dst_q`; in-place
+/// collision `lp[q] = sp[q] = f_q`; AA after an even number of steps `lp[q] = f_q`, `sp[q] = f_q̄` (x, q̄);
+/// AA after an odd number `lp[q] = f_q̄ − off_q` (x − c_q, q̄), `sp[q] = f_q + off_q` (x + c_q, q). In the
+/// in-place cases each stored element is one the same cell loaded before (the pair (q, q̄) is reloaded just
+/// before both are stored), so lanes and cells never conflict.
 ///
 /// # Safety
-/// `src` and `dst` point to distinct fields of one layout; every segment lies in the interior.
+/// Every `lp[q] + i` and `sp[q] + i` for i in a segment is an element of the field(s); a store never hits
+/// an element another cell of the sweep loads.
 #[inline(always)]
-unsafe fn fused_impl<V: Vector, const FORCE: bool, const FMA: bool>(
-    src: *const V::S,
-    dst: *mut V::S,
-    stride: usize,
-    offs: &[isize; Q],
+unsafe fn sweep_impl<V: Vector, const FORCE: bool, const FMA: bool>(
+    lp: &[*const V::S; Q],
+    sp: &[*mut V::S; Q],
     segs: &[Segment],
     p: &TrtParams,
 ) -> SweepStats
@@ -83,96 +88,6 @@ where
     let k1 = VConsts::<V::S>::new(&kc);
     let mut st = LaneStats::<V>::new();
     let mut st1 = LaneStats::<V::S>::new();
-    let sp: [*const V::S; Q] = std::array::from_fn(|q| src.add(q * stride).offset(-offs[q]));
-    let dp: [*mut V::S; Q] = std::array::from_fn(|q| dst.add(q * stride));
-    for s in segs {
-        let mut i = s.start;
-        let end = s.start + s.len;
-        while i + V::LANES <= end {
-            trt_cell::<V, FORCE, FMA>(|q| V::load(sp[q].add(i)), |q, v| v.store(dp[q].add(i)), &k, &mut st);
-            i += V::LANES;
-        }
-        while i < end {
-            trt_cell::<V::S, FORCE, FMA>(|q| *sp[q].add(i), |q, v| *dp[q].add(i) = v, &k1, &mut st1);
-            i += 1;
-        }
-    }
-    finish(st, st1)
-}
-
-/// In-place collision over vector type V.
-///
-/// # Safety
-/// `f_ptr` points to a field of the layout; every segment lies in the interior.
-#[inline(always)]
-unsafe fn collide_impl<V: Vector, const FORCE: bool, const FMA: bool>(
-    f_ptr: *mut V::S,
-    stride: usize,
-    segs: &[Segment],
-    p: &TrtParams,
-) -> SweepStats
-where
-    V::S: Vector<S = V::S>,
-{
-    let kc = p.consts::<V::S>();
-    let k = VConsts::<V>::new(&kc);
-    let k1 = VConsts::<V::S>::new(&kc);
-    let mut st = LaneStats::<V>::new();
-    let mut st1 = LaneStats::<V::S>::new();
-    let ptr: [*mut V::S; Q] = std::array::from_fn(|q| f_ptr.add(q * stride));
-    for s in segs {
-        let mut i = s.start;
-        let end = s.start + s.len;
-        while i + V::LANES <= end {
-            trt_cell::<V, FORCE, FMA>(|q| V::load(ptr[q].add(i)), |q, v| v.store(ptr[q].add(i)), &k, &mut st);
-            i += V::LANES;
-        }
-        while i < end {
-            trt_cell::<V::S, FORCE, FMA>(|q| *ptr[q].add(i), |q, v| *ptr[q].add(i) = v, &k1, &mut st1);
-            i += 1;
-        }
-    }
-    finish(st, st1)
-}
-
-/// AA-pattern step in place over vector type V: after an even number of steps (`ODD = false`) cell x reads
-/// (x, q) and writes f*_q to (x, q̄); after an odd number (`ODD = true`) it reads (x − c_q, q̄) and writes
-/// f*_q to (x + c_q, q). Each stored element is one the same cell loaded before (the pair (q, q̄) is
-/// reloaded just before both are stored), so lanes and cells never conflict.
-///
-/// # Safety
-/// `f_ptr` points to a field of the layout; every segment lies in the interior.
-#[inline(always)]
-unsafe fn aa_impl<V: Vector, const FORCE: bool, const FMA: bool, const ODD: bool>(
-    f_ptr: *mut V::S,
-    stride: usize,
-    offs: &[isize; Q],
-    segs: &[Segment],
-    p: &TrtParams,
-) -> SweepStats
-where
-    V::S: Vector<S = V::S>,
-{
-    let kc = p.consts::<V::S>();
-    let k = VConsts::<V>::new(&kc);
-    let k1 = VConsts::<V::S>::new(&kc);
-    let mut st = LaneStats::<V>::new();
-    let mut st1 = LaneStats::<V::S>::new();
-    // Load and store pointers per direction, offsets folded in.
-    let lp: [*const V::S; Q] = std::array::from_fn(|q| {
-        if ODD {
-            f_ptr.add(OPP[q] * stride).offset(-offs[q]) as *const V::S
-        } else {
-            f_ptr.add(q * stride) as *const V::S
-        }
-    });
-    let sp: [*mut V::S; Q] = std::array::from_fn(|q| {
-        if ODD {
-            f_ptr.add(q * stride).offset(offs[q])
-        } else {
-            f_ptr.add(OPP[q] * stride)
-        }
-    });
     for s in segs {
         let mut i = s.start;
         let end = s.start + s.len;
@@ -189,7 +104,7 @@ where
 }
 
 /// # Safety
-/// As for [`fused_impl`].
+/// `src` and `dst` point to distinct fields of one layout; every segment lies in the interior.
 #[inline(always)]
 unsafe fn stream_impl<T: Real>(src: *const T, dst: *mut T, stride: usize, offs: &[isize; Q], segs: &[Segment]) {
     for (q, &off) in offs.iter().enumerate() {
@@ -232,20 +147,24 @@ impl RawArgs<'_> {
     where
         V::S: Vector<S = V::S>,
     {
-        let dst = self.dst as *mut V::S;
-        match self.mode {
-            Mode::Fused => fused_impl::<V, F, FMA>(
-                self.src as *const V::S,
-                dst,
-                self.stride,
-                &self.offs,
-                self.segs,
-                &self.p,
+        let (src, dst, stride, off) = (self.src as *const V::S, self.dst as *mut V::S, self.stride, &self.offs);
+        let f = |q: usize| dst.add(q * stride);
+        let (lp, sp): ([*const V::S; Q], [*mut V::S; Q]) = match self.mode {
+            Mode::Fused => (
+                std::array::from_fn(|q| src.add(q * stride).offset(-off[q])),
+                std::array::from_fn(f),
             ),
-            Mode::Collide => collide_impl::<V, F, FMA>(dst, self.stride, self.segs, &self.p),
-            Mode::AaEven => aa_impl::<V, F, FMA, false>(dst, self.stride, &self.offs, self.segs, &self.p),
-            Mode::AaOdd => aa_impl::<V, F, FMA, true>(dst, self.stride, &self.offs, self.segs, &self.p),
-        }
+            Mode::Collide => (std::array::from_fn(|q| f(q) as *const V::S), std::array::from_fn(f)),
+            Mode::AaEven => (
+                std::array::from_fn(|q| f(q) as *const V::S),
+                std::array::from_fn(|q| f(OPP[q])),
+            ),
+            Mode::AaOdd => (
+                std::array::from_fn(|q| f(OPP[q]).offset(-off[q]) as *const V::S),
+                std::array::from_fn(|q| f(q).offset(off[q])),
+            ),
+        };
+        sweep_impl::<V, F, FMA>(&lp, &sp, self.segs, &self.p)
     }
 }
 
