@@ -86,6 +86,13 @@ fn bad_values_name_their_key() {
     fails_cleanly(&ch, &["--set", "balance.latency=-1"], &["balance.latency"]);
     fails_cleanly(&ch, &["--set", "balance.bandwidth=0"], &["balance.bandwidth"]);
     fails_cleanly(&ch, &["--set", "processes.steal=\"everywhere\""], &["processes.steal"]);
+    fails_cleanly(&ch, &["--png", "0"], &["run.png_every"]);
+    fails_cleanly(
+        &ch,
+        &["--png", "5", "--set", "run.png_normal=\"w\""],
+        &["run.png_normal"],
+    );
+    fails_cleanly(&ch, &["--png", "5", "--set", "run.png_at=999"], &["run.png_at = 999"]);
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! The first run a new user makes: `blockflow run` without a scene runs the built-in demo (spheres in a
 //! hopper on 2 virtual processes, rebalanced every 100 steps by measured workload) and writes its
-//! figures and report. Checks: the figures are PNGs of their documented size, every file the report
+//! figures, pictures and report. Checks: the figures and pictures decode at their documented size, the
+//! GIF has one frame per picture, every file the report
 //! links exists, and the load imbalance after the first rebalance is below that of the initial
 //! assignment (which splits by fluid cells and so leaves most of the spheres' work on one process).
 
@@ -54,9 +55,35 @@ fn the_demo_balances_draws_and_reports() {
     // Sizes from io::plots::run::{BALANCE_FIGURE_SIZE, PARTS_FIGURE_SIZE}.
     assert_eq!(png_size(&out.join("balance.png")), (1400, 1100));
     assert_eq!(png_size(&out.join("parts.png")), (1400, 800));
+    // The demo draws the plane y = 24 every 100 steps (run.png_every): steps 0 to 500, 48 x 72 cells at
+    // 10 pixels per cell with the axes and the legend strip (io::plots::slice::image_size).
+    let pictures: Vec<PathBuf> = (0..=5)
+        .map(|k| out.join(format!("slices/step-{:08}.png", 100 * k)))
+        .collect();
+    for p in &pictures {
+        let img = image::open(p).unwrap_or_else(|e| panic!("{} does not decode: {e}", p.display()));
+        assert_eq!((img.width(), img.height()), (880, 850), "{}", p.display());
+    }
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut gif = opts
+        .read_info(std::fs::File::open(out.join("slices.gif")).unwrap())
+        .unwrap();
+    let mut frames = 0;
+    while let Some(f) = gif.read_next_frame().unwrap() {
+        assert_eq!((f.width, f.height), (880, 850));
+        frames += 1;
+    }
+    assert_eq!(frames, pictures.len(), "one GIF frame per picture");
     let report = std::fs::read_to_string(out.join("report.md")).unwrap();
     let links = link_targets(&report);
-    for must in ["balance.png", "parts.png", "summary.json", "effective.toml"] {
+    for must in [
+        "balance.png",
+        "parts.png",
+        "slices.gif",
+        "summary.json",
+        "effective.toml",
+    ] {
         assert!(links.iter().any(|l| l == must), "report.md does not link {must}");
     }
     for l in &links {

@@ -15,6 +15,15 @@ pub struct RunConfig {
     pub series_every: Option<u64>,
     /// Write VTK output every this many steps (default: never).
     pub vtk_every: Option<u64>,
+    /// Draw a picture of one plane of the flow every this many steps (`OUT/slices/step-<step>.png`, and
+    /// `OUT/slices.gif` of them all; `--png`; default: never).
+    pub png_every: Option<u64>,
+    /// The axis normal to the pictured plane: "x", "y" or "z" (default: the thinnest axis where it has
+    /// less than half the cells of the longest, as in a channel or a 2D scene, else "y", a vertical
+    /// plane for gravity along z).
+    pub png_normal: Option<String>,
+    /// The plane's cell index along `png_normal` (default: the middle of the domain).
+    pub png_at: Option<usize>,
     /// Write a checkpoint (`OUT/checkpoints/step-<step>`) whenever the step is a multiple of this
     /// (default: never; `--checkpoint-every`).
     pub checkpoint_every: Option<u64>,
@@ -43,6 +52,9 @@ impl Default for RunConfig {
             out: None,
             series_every: None,
             vtk_every: None,
+            png_every: None,
+            png_normal: None,
+            png_at: None,
             checkpoint_every: None,
             checkpoint_wall: None,
             checkpoints_kept: d_checkpoints_kept(),
@@ -60,9 +72,15 @@ impl RunConfig {
         for (name, v) in [
             ("run.series_every", self.series_every),
             ("run.vtk_every", self.vtk_every),
+            ("run.png_every", self.png_every),
         ] {
             if v == Some(0) {
                 return config_err(format!("{name} = 0: must be at least 1 (leave it out to disable)"));
+            }
+        }
+        if let Some(n) = &self.png_normal {
+            if !matches!(n.as_str(), "x" | "y" | "z") {
+                return config_err(format!("run.png_normal = {n:?}: must be \"x\", \"y\" or \"z\""));
             }
         }
         if self.checkpoint_every == Some(0) {

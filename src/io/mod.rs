@@ -1,6 +1,7 @@
 //! Output: `summary.json`, the CSV time series and interval table, VTK files for ParaView and the PNG
-//! figures.
+//! figures, and the animated GIF of a run's snapshots.
 
+pub mod animation;
 pub mod intervals;
 pub mod plots;
 pub mod series;

@@ -6,6 +6,7 @@ mod outputs;
 mod recap;
 mod report;
 pub mod resources;
+mod snapshots;
 mod summary;
 
 use crate::app::signals;
@@ -22,6 +23,7 @@ use crate::util::fs::{ensure_writable, write_atomic};
 use blockflow_kernels::rigid::Body;
 use blockflow_kernels::Real;
 use outputs::{CheckpointWriter, Progress, SeriesWriter, StopOnSignal, TrajectoryRecorder, VtkWriter};
+use snapshots::SliceWriter;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -47,6 +49,10 @@ pub struct RunArgs {
     /// Write VTK output (fluid.pvd) every N steps.
     #[arg(long, value_name = "EVERY")]
     pub vtk: Option<u64>,
+    /// Draw one plane of the flow every N steps: OUT/slices/step-<step>.png and OUT/slices.gif
+    /// (run.png_every; the plane: run.png_normal, run.png_at).
+    #[arg(long, value_name = "EVERY")]
+    pub png: Option<u64>,
     /// Virtual processes P (processes.count).
     #[arg(long)]
     pub processes: Option<usize>,
@@ -106,6 +112,9 @@ impl RunArgs {
         }
         if let Some(k) = self.checkpoints_kept {
             set.push(format!("run.checkpoints_kept={k}"));
+        }
+        if let Some(n) = self.png {
+            set.push(format!("run.png_every={n}"));
         }
         if self.no_skip {
             set.push("run.no_skip=true".into());
@@ -311,6 +320,7 @@ fn plan(cfg: &Config, scene: &Scene, opts: &RunOptions) -> Result<Plan> {
         ensure_writable(&dir.join("checkpoints"))?;
     }
     let _ = std::fs::remove_file(dir.join("summary.json"));
+    remove_old_pictures(&dir);
     let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
     let config_text = effective_text(cfg, steps, &dir, vtk_every);
     write_atomic(&dir.join("effective.toml"), config_text.as_bytes())?;
@@ -320,6 +330,20 @@ fn plan(cfg: &Config, scene: &Scene, opts: &RunOptions) -> Result<Plan> {
         vtk_every,
         config_text,
     })
+}
+
+/// Removes the pictures of an earlier run in `dir` (`slices.gif`, `slices/step-*.png`), so that the
+/// folder and its report show only this run's.
+fn remove_old_pictures(dir: &Path) {
+    let _ = std::fs::remove_file(dir.join("slices.gif"));
+    if let Ok(entries) = std::fs::read_dir(dir.join("slices")) {
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().to_string();
+            if name.starts_with("step-") && name.ends_with(".png") {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
 }
 
 /// The fields of summary.json known before the first step.
@@ -369,6 +393,18 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     let trajectory = TrajectoryRecorder::new(dir, tl.sim(), scene.units).map(|r| tl.add_observer(r));
     if let Some(every) = plan.vtk_every {
         let w = VtkWriter::new(dir, tl.sim(), every)?;
+        tl.add_observer(w);
+    }
+    if let Some(every) = cfg.run.png_every {
+        let w = SliceWriter::new(
+            dir,
+            tl.sim(),
+            tl.pipeline().owners(),
+            cfg,
+            every,
+            scene.name,
+            scene.units,
+        )?;
         tl.add_observer(w);
     }
     let checkpoints = tl.add_observer(CheckpointWriter::new(

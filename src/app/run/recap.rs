@@ -48,6 +48,18 @@ pub fn recap(s: &Summary, cfg: &Config, dir: &Path) -> String {
         None => format!("checksum {}", s.checksum.fluid),
     };
     text += &format!("  {sum}; results in {}\n", dir.display());
+    let pictures: Vec<&str> = ["balance.png", "parts.png", "slices.gif"]
+        .into_iter()
+        .filter(|f| dir.join(f).exists())
+        .collect();
+    if dir.join("report.md").exists() || !pictures.is_empty() {
+        let also = if pictures.is_empty() {
+            String::new()
+        } else {
+            format!(", then {}", pictures.join(", "))
+        };
+        text += &format!("  open {} first{also}\n", dir.join("report.md").display());
+    }
     text
 }
 

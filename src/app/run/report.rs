@@ -7,9 +7,14 @@ use crate::util::fs::write_atomic;
 use std::path::Path;
 
 /// The files a run folder may hold, with what each is, in the order a reader wants them.
-const FILES: [(&str, &str); 10] = [
+const FILES: [(&str, &str); 12] = [
     ("balance.png", "load imbalance per interval and each process's workload"),
     ("parts.png", "time per part of the step per interval"),
+    (
+        "slices.gif",
+        "the pictured plane at every picture step, animated (with --png)",
+    ),
+    ("slices", "the pictured plane as one PNG per picture step (with --png)"),
     ("summary.json", "every number of this page and more (machine-readable)"),
     (
         "intervals.csv",
@@ -100,7 +105,11 @@ fn text(dir: &Path, s: &Summary, command: &str) -> String {
     };
     row(&mut t, "checksums", sums);
     t += "\n";
-    for (file, title) in [("balance.png", "Load balance"), ("parts.png", "Time per part")] {
+    for (file, title) in [
+        ("balance.png", "Load balance"),
+        ("parts.png", "Time per part"),
+        ("slices.gif", "The flow"),
+    ] {
         if dir.join(file).exists() {
             t += &format!("## {title}\n\n![{title}]({file})\n\n");
         }

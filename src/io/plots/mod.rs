@@ -1,7 +1,8 @@
 //! PNG figures: the shared drawing pieces (DejaVu Sans embedded in the binary, the colour palette, canvas,
 //! legend strip, line panel, tick labels) and one file per family of figures: [`calibration`] (figures
 //! 6–8 of the workload evaluation), [`balance`] (figures 10 and 11 of the study), [`scan`] (run time
-//! against error, stability maps) and [`run`] (load balance and time per part of one run).
+//! against error, stability maps), [`run`] (load balance and time per part of one run) and [`slice`] (a
+//! snapshot of one plane of the flow with its spheres and blocks).
 //!
 //! Plain data in, PNG out (plotters' bitmap backend; `path` should end in `.png`, the encoder is chosen by
 //! the extension). Text is set in DejaVu Sans embedded in the binary (the `dejavu` crate, registered with
@@ -12,6 +13,7 @@ pub mod balance;
 pub mod calibration;
 pub mod run;
 pub mod scan;
+pub mod slice;
 
 pub use calibration::{figure6, figure7, figure8, figure8_size, BlockSeries, FIGURE6_SIZE, FIGURE7_SIZE};
 
