@@ -93,6 +93,11 @@ fn bad_values_name_their_key() {
         &["run.png_normal"],
     );
     fails_cleanly(&ch, &["--png", "5", "--set", "run.png_at=999"], &["run.png_at = 999"]);
+    fails_cleanly(
+        &ch,
+        &["--vtk", "5", "--set", "run.vtk_encoding=\"zip\""],
+        &["run.vtk_encoding", "base64"],
+    );
 }
 
 #[test]

@@ -483,30 +483,36 @@ fn write_csv(opts: &ScanOptions, keys: &[String], rows: &[ScanRow]) -> Result<()
     std::fs::write(&p, text).map_err(|e| io_err(&p, e))
 }
 
-/// The sweep as a markdown table (the Pareto rows marked).
+/// The sweep as a markdown table: with an error observable its value and the Pareto rows marked;
+/// without one (a pinning or scaling experiment) the median load imbalance and the cores the threads
+/// ran on instead.
 pub fn to_markdown(r: &ScanReport) -> String {
-    let e = r.error.clone().unwrap_or_else(|| "error".into());
-    let mut s = format!(
-        "| {} | status | wall s | core s | MLUPS | {e} | Pareto |\n",
-        r.keys.join(" | ")
-    );
-    s += &format!("|{}---|---:|---:|---:|---:|---|\n", "---|".repeat(r.keys.len()));
+    let keys = r.keys.join(" | ");
+    let rule = "---|".repeat(r.keys.len());
+    let mut s = match &r.error {
+        Some(e) => format!(
+            "| {keys} | status | wall s | core s | MLUPS | {e} | Pareto |\n|{rule}---|---:|---:|---:|---:|---|\n"
+        ),
+        None => {
+            format!("| {keys} | status | wall s | core s | MLUPS | LI | cores |\n|{rule}---|---:|---:|---:|---:|---|\n")
+        }
+    };
     for (i, row) in r.rows.iter().enumerate() {
-        let err = r
-            .error
-            .as_ref()
-            .and_then(|k| row.observables.get(k))
-            .copied()
-            .unwrap_or(f64::NAN);
+        let last = match &r.error {
+            Some(k) => format!(
+                "{:.3e} | {}",
+                row.observables.get(k).copied().unwrap_or(f64::NAN),
+                if r.pareto.contains(&i) { "yes" } else { "" }
+            ),
+            None => format!("{:.1} % | {}", 100.0 * row.imbalance, row.cores.replace(';', " ")),
+        };
         s += &format!(
-            "| {} | {} | {:.3} | {:.3} | {:.1} | {:.3e} | {} |\n",
+            "| {} | {} | {:.3} | {:.3} | {:.1} | {last} |\n",
             row.values.join(" | "),
             row.status,
             row.wall_seconds,
             row.core_seconds,
             row.mlups,
-            err,
-            if r.pareto.contains(&i) { "yes" } else { "" }
         );
     }
     for (label, o) in &r.orders {
@@ -540,5 +546,58 @@ mod tests {
         // (time, error): 0 is fastest; 2 is slower and better; 1 is slower than 0 and worse; 3 slowest, best.
         let front = pareto_front(&[(1.0, 0.1), (2.0, 0.2), (3.0, 0.05), (4.0, 0.01), (f64::NAN, 0.0)]);
         assert_eq!(front, vec![0, 2, 3]);
+    }
+
+    fn row(values: &[&str], imbalance: f64, cores: &str, error: Option<f64>) -> ScanRow {
+        ScanRow {
+            values: values.iter().map(|v| v.to_string()).collect(),
+            status: "ok".into(),
+            steps: 100,
+            wall_seconds: 1.0,
+            core_seconds: 2.0,
+            mlups: 20.0,
+            imbalance,
+            cores: cores.into(),
+            observables: error.map(|e| ("l2_error".to_string(), e)).into_iter().collect(),
+            failed_step: None,
+            message: None,
+        }
+    }
+
+    #[test]
+    fn table_shows_imbalance_and_cores_without_an_error_observable() {
+        let pinning = ScanReport {
+            keys: vec!["processes.pin".into()],
+            rows: vec![
+                row(&["compact"], 0.195, "0;1", None),
+                row(&["none"], 0.105, "-;-", None),
+            ],
+            error: None,
+            orders: vec![],
+            pareto: vec![],
+        };
+        let t = to_markdown(&pinning);
+        assert!(
+            t.starts_with("| processes.pin | status | wall s | core s | MLUPS | LI | cores |"),
+            "{t}"
+        );
+        assert!(
+            t.contains("| compact | ok | 1.000 | 2.000 | 20.0 | 19.5 % | 0 1 |"),
+            "{t}"
+        );
+        assert!(t.contains("| none | ok | 1.000 | 2.000 | 20.0 | 10.5 % | - - |"), "{t}");
+        assert!(!t.contains("Pareto") && !t.contains("NaN"), "{t}");
+        let accuracy = ScanReport {
+            keys: vec!["scene.resolution".into()],
+            rows: vec![row(&["8"], 0.0, "-", Some(1.5e-3))],
+            error: Some("l2_error".into()),
+            orders: vec![],
+            pareto: vec![0],
+        };
+        let t = to_markdown(&accuracy);
+        assert!(
+            t.contains("| l2_error | Pareto |") && t.contains("| 8 | ok | 1.000 | 2.000 | 20.0 | 1.500e-3 | yes |"),
+            "{t}"
+        );
     }
 }

@@ -21,7 +21,7 @@ pub use fluid::{FluidConfig, KernelChoice, Precision, Streaming};
 pub use parse::{apply_override, load, parse, parse_table};
 pub use particles::{ParticlesConfig, Refill, SurfaceBoundary};
 pub use processes::{PinConfig, ProcessesConfig, StealConfig};
-pub use run::{RunConfig, DEFAULT_KEPT};
+pub use run::{RunConfig, VtkEncoding, DEFAULT_KEPT};
 
 use crate::error::Result;
 use serde::{Deserialize, Serialize};

@@ -15,6 +15,11 @@ pub struct RunConfig {
     pub series_every: Option<u64>,
     /// Write VTK output every this many steps (default: never).
     pub vtk_every: Option<u64>,
+    /// How the VTK files store their binary arrays: "raw" (appended raw bytes, the smallest and
+    /// fastest; ParaView and VTK read it) or "base64" (appended base64 text, a third larger, but the
+    /// files are well-formed XML that any XML-based reader parses, e.g. meshio, vtk.js, vtkio).
+    #[serde(default)]
+    pub vtk_encoding: VtkEncoding,
     /// Draw a picture of one plane of the flow every this many steps (`OUT/slices/step-<step>.png`, and
     /// `OUT/slices.gif` of them all; `--png`; default: never).
     pub png_every: Option<u64>,
@@ -41,6 +46,17 @@ pub struct RunConfig {
     pub no_skip: bool,
 }
 
+/// How VTK XML files store their binary arrays (`run.vtk_encoding`).
+#[derive(Clone, Copy, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum VtkEncoding {
+    /// `<AppendedData encoding="raw">`: the arrays' bytes as they are (default).
+    #[default]
+    Raw,
+    /// `<AppendedData encoding="base64">`: each array with its byte-count header as base64 text.
+    Base64,
+}
+
 fn d_checkpoints_kept() -> usize {
     DEFAULT_KEPT
 }
@@ -52,6 +68,7 @@ impl Default for RunConfig {
             out: None,
             series_every: None,
             vtk_every: None,
+            vtk_encoding: VtkEncoding::default(),
             png_every: None,
             png_normal: None,
             png_at: None,

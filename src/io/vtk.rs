@@ -2,8 +2,8 @@
 //! multiblock file and over time by a collection file.
 //!
 //! Layout under the output directory `dir`:
-//! - `dir/vtk/step_<step:08>/block_<id:05>.vti`: one block's interior cells (VTK XML ImageData, raw
-//!   appended binary, little endian). Cell data `density` (Float32), `velocity` (Float32, 3 components)
+//! - `dir/vtk/step_<step:08>/block_<id:05>.vti`: one block's interior cells (VTK XML ImageData,
+//!   appended binary, little endian, as raw bytes or base64 text: [`VtkEncoding`]). Cell data `density` (Float32), `velocity` (Float32, 3 components)
 //!   and `flags` (UInt8, the cell flag bits). Lattice units: Δx = 1, the global domain's first cell has
 //!   its centre at (0.5, 0.5, 0.5).
 //! - `dir/vtk/step_<step:08>.vtm`: multiblock dataset listing the blocks of one step.
@@ -14,7 +14,9 @@
 //! the cells having the fluid bit (1). Fluid cells hold 1, or 3 next to a boundary, while walls (4, 8) and
 //! outside cells (16) lack that bit, so Threshold on `flags` with the range 1 to 3 shows only the fluid.
 
+pub use crate::config::VtkEncoding;
 use crate::util::fs::{tmp_beside, write_atomic_to};
+use base64::Engine;
 use std::fs::{self, File};
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -39,15 +41,18 @@ pub struct VtkPiece<'a> {
 /// A time series of VTK output in a directory: `.vti` per block, `.vtm` per step and `fluid.pvd` overall.
 pub struct VtkSeries {
     dir: PathBuf,
+    encoding: VtkEncoding,
     steps: Vec<(u64, f64)>,
 }
 
 impl VtkSeries {
-    /// Prepares `dir/vtk/` (creating it). Nothing else is written until [`VtkSeries::write_step`].
-    pub fn new(dir: &Path) -> io::Result<Self> {
+    /// Prepares `dir/vtk/` (creating it) for block files whose arrays are stored as `encoding`. Nothing
+    /// else is written until [`VtkSeries::write_step`].
+    pub fn new(dir: &Path, encoding: VtkEncoding) -> io::Result<Self> {
         fs::create_dir_all(dir.join("vtk"))?;
         Ok(Self {
             dir: dir.to_path_buf(),
+            encoding,
             steps: Vec::new(),
         })
     }
@@ -79,7 +84,7 @@ impl VtkSeries {
         );
         for (i, p) in pieces.iter().enumerate() {
             let file = format!("{step_name}/block_{:05}.vti", p.block_id);
-            write_atomic(&vtk_dir.join(&file), |w| write_vti(w, p))?;
+            write_atomic(&vtk_dir.join(&file), |w| write_vti(w, p, self.encoding))?;
             vtm += &format!(
                 "    <DataSet index=\"{i}\" name=\"block_{}\" file=\"{file}\"/>\n",
                 p.block_id
@@ -150,16 +155,40 @@ fn write_atomic(path: &Path, body: impl FnOnce(&mut BufWriter<File>) -> io::Resu
     write_atomic_to(path, &tmp_beside(path), false, body).map_err(|(_, e)| e)
 }
 
-fn write_vti(w: &mut impl Write, p: &VtkPiece) -> io::Result<()> {
-    let n = p.density.len();
+/// One Float32 data array of the appended section: the UInt64 byte count, then the values (little endian).
+fn appended_array(values: impl Iterator<Item = f64>, len: usize) -> Vec<u8> {
+    let mut buf = Vec::with_capacity(8 + 4 * len);
+    buf.extend_from_slice(&(4 * len as u64).to_le_bytes());
+    values.for_each(|v| buf.extend_from_slice(&(v as f32).to_le_bytes()));
+    buf
+}
+
+fn write_vti(w: &mut impl Write, p: &VtkPiece, encoding: VtkEncoding) -> io::Result<()> {
     let (o, s) = (p.origin, p.size);
     let extent: Vec<String> = (0..3)
         .flat_map(|a| [o[a], o[a] + s[a]])
         .map(|v| v.to_string())
         .collect();
     let extent = extent.join(" ");
-    let off_velocity = 8 + 4 * n;
-    let off_flags = off_velocity + 8 + 12 * n;
+    let density = appended_array(p.density.iter().copied(), p.density.len());
+    let velocity = appended_array(p.velocity.iter().flatten().copied(), 3 * p.velocity.len());
+    let mut flags = Vec::with_capacity(8 + p.flags.len());
+    flags.extend_from_slice(&(p.flags.len() as u64).to_le_bytes());
+    flags.extend_from_slice(p.flags);
+    // Raw: the arrays follow each other byte for byte. Base64: each array (count and values together)
+    // is encoded on its own, and the offsets count characters of the encoded text, as VTK reads it.
+    let arrays: [Vec<u8>; 3] = match encoding {
+        VtkEncoding::Raw => [density, velocity, flags],
+        VtkEncoding::Base64 => {
+            [density, velocity, flags].map(|a| base64::engine::general_purpose::STANDARD.encode(a).into_bytes())
+        }
+    };
+    let off_velocity = arrays[0].len();
+    let off_flags = off_velocity + arrays[1].len();
+    let name = match encoding {
+        VtkEncoding::Raw => "raw",
+        VtkEncoding::Base64 => "base64",
+    };
     write!(
         w,
         "<?xml version=\"1.0\"?>\n\
@@ -176,20 +205,11 @@ fn write_vti(w: &mut impl Write, p: &VtkPiece) -> io::Result<()> {
          </CellData>\n    \
          </Piece>\n  \
          </ImageData>\n  \
-         <AppendedData encoding=\"raw\">\n   _"
+         <AppendedData encoding=\"{name}\">\n   _"
     )?;
-    let mut buf = Vec::with_capacity(off_flags + 8 + n);
-    buf.extend_from_slice(&(4 * n as u64).to_le_bytes());
-    for &rho in p.density {
-        buf.extend_from_slice(&(rho as f32).to_le_bytes());
+    for a in &arrays {
+        w.write_all(a)?;
     }
-    buf.extend_from_slice(&(12 * n as u64).to_le_bytes());
-    for v in p.velocity.iter().flatten() {
-        buf.extend_from_slice(&(*v as f32).to_le_bytes());
-    }
-    buf.extend_from_slice(&(n as u64).to_le_bytes());
-    buf.extend_from_slice(p.flags);
-    w.write_all(&buf)?;
     w.write_all(b"\n  </AppendedData>\n</VTKFile>\n")
 }
 
@@ -261,7 +281,7 @@ mod tests {
     #[test]
     fn writes_series() {
         let dir = scratch("series");
-        let mut series = VtkSeries::new(&dir).unwrap();
+        let mut series = VtkSeries::new(&dir, VtkEncoding::Raw).unwrap();
         assert!(series.is_empty() && dir.join("vtk").is_dir());
         let (a, b) = (data(4 * 3 * 2, 0.0), data(2 * 3 * 2, 0.5));
         let pieces = [piece(0, [0, 0, 0], [4, 3, 2], &a), piece(7, [4, 0, 0], [2, 3, 2], &b)];
@@ -288,10 +308,54 @@ mod tests {
         fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// The offsets of a block file and the bytes of its appended section.
+    fn appended(path: &Path) -> (Vec<usize>, Vec<u8>) {
+        let bytes = fs::read(path).unwrap();
+        let section = bytes.windows(13).position(|w| w == b"<AppendedData").unwrap();
+        let start = section + bytes[section..].iter().position(|&b| b == b'_').unwrap() + 1;
+        let end = bytes.len() - b"\n  </AppendedData>\n</VTKFile>\n".len();
+        let header = std::str::from_utf8(&bytes[..start]).unwrap();
+        let offsets = header
+            .split("offset=\"")
+            .skip(1)
+            .map(|s| s[..s.find('"').unwrap()].parse().unwrap())
+            .collect();
+        (offsets, bytes[start..end].to_vec())
+    }
+
+    #[test]
+    fn base64_files_hold_the_raw_bytes() {
+        let dir = scratch("base64");
+        let a = data(5 * 3 * 2, 0.25);
+        let pieces = [piece(2, [0, 3, 0], [5, 3, 2], &a)];
+        VtkSeries::new(&dir.join("raw"), VtkEncoding::Raw)
+            .unwrap()
+            .write_step(4, 1.0, &pieces)
+            .unwrap();
+        VtkSeries::new(&dir.join("b64"), VtkEncoding::Base64)
+            .unwrap()
+            .write_step(4, 1.0, &pieces)
+            .unwrap();
+        let file = "vtk/step_00000004/block_00002.vti";
+        let (raw_offsets, raw) = appended(&dir.join("raw").join(file));
+        let (offsets, text) = appended(&dir.join("b64").join(file));
+        let text = std::str::from_utf8(&text).expect("base64 is text");
+        // Each array decodes on its own from its character offset to the next one.
+        let mut decoded = Vec::new();
+        let ends = offsets.iter().skip(1).copied().chain([text.len()]);
+        for (from, to) in offsets.iter().zip(ends) {
+            let chunk = &text[*from..to];
+            decoded.extend(base64::engine::general_purpose::STANDARD.decode(chunk).unwrap());
+        }
+        assert_eq!(decoded, raw);
+        assert_eq!(raw_offsets, [0, 8 + 4 * 30, 8 + 4 * 30 + 8 + 12 * 30]);
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn rejects_length_mismatch() {
         let dir = scratch("mismatch");
-        let mut series = VtkSeries::new(&dir).unwrap();
+        let mut series = VtkSeries::new(&dir, VtkEncoding::Raw).unwrap();
         let mut d = data(8, 0.0);
         d.velocity.pop();
         let err = series

@@ -392,7 +392,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     tl.add_observer(SeriesWriter::new(dir, tl.sim(), series_every, steps)?);
     let trajectory = TrajectoryRecorder::new(dir, tl.sim(), scene.units).map(|r| tl.add_observer(r));
     if let Some(every) = plan.vtk_every {
-        let w = VtkWriter::new(dir, tl.sim(), every)?;
+        let w = VtkWriter::new(dir, tl.sim(), every, cfg.run.vtk_encoding)?;
         tl.add_observer(w);
     }
     if let Some(every) = cfg.run.png_every {

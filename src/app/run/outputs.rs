@@ -7,7 +7,7 @@ use crate::checkpoint::{self, BalanceState, CheckpointInput};
 use crate::config::Config;
 use crate::error::{io_err, Result};
 use crate::io::series::{ParticleRow, ParticleSeries, Series};
-use crate::io::vtk::{ParticleVtkSeries, VtkParticle, VtkPiece, VtkSeries};
+use crate::io::vtk::{ParticleVtkSeries, VtkEncoding, VtkParticle, VtkPiece, VtkSeries};
 use crate::physics::geometry::flags;
 use crate::physics::simulation::Simulation;
 use crate::scenes::Units;
@@ -204,15 +204,15 @@ pub struct VtkWriter {
 }
 
 impl VtkWriter {
-    /// Creates the series in `dir` and writes the current state.
-    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, every: u64) -> Result<Self> {
+    /// Creates the series in `dir`, block arrays stored as `encoding`, and writes the current state.
+    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, every: u64, encoding: VtkEncoding) -> Result<Self> {
         let particles = match &sim.particles {
             Some(_) => Some(ParticleVtkSeries::new(dir).map_err(|e| io_err(dir, e))?),
             None => None,
         };
         let mut w = VtkWriter {
             every,
-            fluid: VtkSeries::new(dir).map_err(|e| io_err(dir, e))?,
+            fluid: VtkSeries::new(dir, encoding).map_err(|e| io_err(dir, e))?,
             particles,
         };
         w.write(sim)?;

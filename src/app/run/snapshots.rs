@@ -160,6 +160,7 @@ pub fn slice_of<T: Real>(sim: &Simulation<T>, plane: Plane, owners: &[u32], proc
         circles,
         blocks,
         processes,
+        bodies: sim.particles.is_some(),
     }
 }
 

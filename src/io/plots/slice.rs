@@ -42,6 +42,9 @@ pub struct Slice {
     pub blocks: Vec<([f64; 4], u32)>,
     /// Number of processes (for the legend).
     pub processes: usize,
+    /// Whether the scene has bodies: the legend names sphere cells and cut circles only then (the same
+    /// in every picture of a run, so an animation's legend stays still).
+    pub bodies: bool,
 }
 
 /// Width of the strip right of the plane: the colour bar and the legend.
@@ -230,18 +233,23 @@ fn draw_strip(area: &Area, slice: &Slice, max: f64) -> DrawResult {
         y += 24;
     }
     y += 12;
+    // Only what can appear: walls and outside cells where the plane has them, sphere cells where the
+    // scene has bodies.
+    let has = |kind: SliceCell| slice.cells.contains(&kind);
     let fills = [
-        (PARTICLE, "under a sphere"),
-        (WALL, "wall"),
-        (OUTSIDE, "outside the fluid"),
+        (PARTICLE, "under a sphere", slice.bodies),
+        (WALL, "wall", has(SliceCell::Wall)),
+        (OUTSIDE, "outside the fluid", has(SliceCell::Outside)),
     ];
-    for (c, name) in fills {
+    for (c, name, _) in fills.into_iter().filter(|f| f.2) {
         area.draw(&Rectangle::new([(left, y - 8), (left + 28, y + 8)], c.filled()))?;
         area.draw(&Text::new(name, (left + 40, y), label.clone()))?;
         y += 24;
     }
-    area.draw(&Circle::new((left + 14, y), 8, BLACK.stroke_width(2)))?;
-    area.draw(&Text::new("sphere cut by the plane", (left + 40, y), label))?;
+    if slice.bodies {
+        area.draw(&Circle::new((left + 14, y), 8, BLACK.stroke_width(2)))?;
+        area.draw(&Text::new("sphere cut by the plane", (left + 40, y), label))?;
+    }
     Ok(())
 }
 
@@ -280,6 +288,7 @@ mod tests {
             circles: vec![[10.0, 15.0, 4.0], [0.0, 0.0, 3.0]],
             blocks: vec![([0.0, 0.0, 10.0, 30.0], 0), ([10.0, 0.0, 20.0, 30.0], 1)],
             processes: 2,
+            bodies: true,
         }
     }
 
