@@ -55,7 +55,7 @@ pub struct ParticlesConfig {
     /// speed (0.1–0.2 % without) and moves its peak by up to 3 % (`docs/benchmarks.md`).
     #[serde(default)]
     pub conserve_momentum: bool,
-    /// `"equilibrium"` (default) or `"grad"`: how uncovered cells are rebuilt.
+    /// `"equilibrium"` (default), `"grad"` or `"extrapolation"`: how uncovered cells are rebuilt.
     #[serde(default)]
     pub refill: Refill,
     /// `false` leaves the scene's bodies out: the fluid runs alone on the same blocks and geometry (to
@@ -182,6 +182,10 @@ pub enum Refill {
     /// The equilibrium plus Grad's non-equilibrium part from the velocity gradient of the fluid
     /// neighbours (central differences where both neighbours along an axis are fluid, else one-sided).
     Grad,
+    /// Every population extrapolated from the fluid cells along the lattice direction closest to the
+    /// sphere's outward normal: quadratic 3f₁ − 3f₂ + f₃ with three such cells, linear 2f₁ − f₂ with two;
+    /// with fewer, as `grad` (waLBerla's extrapolation reconstructor with its sphere-normal direction).
+    Extrapolation,
 }
 
 /// Boundary condition at particle surfaces (`particles.boundary`).
