@@ -57,6 +57,16 @@ pub enum VtkEncoding {
     Base64,
 }
 
+impl VtkEncoding {
+    /// The config word, also the `encoding` attribute of `<AppendedData>` (`"raw"` or `"base64"`).
+    pub fn name(self) -> &'static str {
+        match self {
+            VtkEncoding::Raw => "raw",
+            VtkEncoding::Base64 => "base64",
+        }
+    }
+}
+
 fn d_checkpoints_kept() -> usize {
     DEFAULT_KEPT
 }

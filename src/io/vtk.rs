@@ -3,9 +3,9 @@
 //!
 //! Layout under the output directory `dir`:
 //! - `dir/vtk/step_<step:08>/block_<id:05>.vti`: one block's interior cells (VTK XML ImageData,
-//!   appended binary, little endian, as raw bytes or base64 text: [`VtkEncoding`]). Cell data `density` (Float32), `velocity` (Float32, 3 components)
-//!   and `flags` (UInt8, the cell flag bits). Lattice units: Δx = 1, the global domain's first cell has
-//!   its centre at (0.5, 0.5, 0.5).
+//!   appended binary, little endian, as raw bytes or base64 text: [`VtkEncoding`]). Cell data `density`
+//!   (Float32), `velocity` (Float32, 3 components) and `flags` (UInt8, the cell flag bits). Lattice
+//!   units: Δx = 1, the global domain's first cell has its centre at (0.5, 0.5, 0.5).
 //! - `dir/vtk/step_<step:08>.vtm`: multiblock dataset listing the blocks of one step.
 //! - `dir/fluid.pvd`: collection of every step written so far, with the simulated time as timestep.
 //!
@@ -185,10 +185,7 @@ fn write_vti(w: &mut impl Write, p: &VtkPiece, encoding: VtkEncoding) -> io::Res
     };
     let off_velocity = arrays[0].len();
     let off_flags = off_velocity + arrays[1].len();
-    let name = match encoding {
-        VtkEncoding::Raw => "raw",
-        VtkEncoding::Base64 => "base64",
-    };
+    let name = encoding.name();
     write!(
         w,
         "<?xml version=\"1.0\"?>\n\

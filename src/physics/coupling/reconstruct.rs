@@ -34,10 +34,9 @@ pub struct Rebuild {
 /// populations are extrapolated along the lattice direction c closest to the outward normal x − X
 /// (largest c·(x − X)/|c|) from the cells x + c, x + 2c, x + 3c that were fluid before: quadratic
 /// (3f₁ − 3f₂ + f₃) with all three, linear (2f₁ − f₂) with the first two, and as with `Grad` otherwise.
-/// With `how.conserve_momentum`, a covered
-/// cell's fluid momentum goes to the body that covers it and a rebuilt cell's momentum is taken from the
-/// body that left it (fluid plus bodies conserve momentum); without, the bodies feel only the momentum
-/// exchange at their surface links.
+/// With `how.conserve_momentum`, a covered cell's fluid momentum goes to the body that covers it and a
+/// rebuilt cell's momentum is taken from the body that left it (fluid plus bodies conserve momentum);
+/// without, the bodies feel only the momentum exchange at their surface links.
 ///
 /// # Safety
 /// No other task may access this block's state of parity `p` concurrently.
