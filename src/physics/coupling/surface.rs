@@ -21,6 +21,9 @@ use glam::DVec3;
 /// How many link cells ahead the boundary pass asks for PDFs.
 const PREFETCH_AHEAD: usize = 8;
 
+/// Entries of the boundary pass's direct-mapped cache of body slots (a power of two).
+const BODY_CACHE: usize = 64;
+
 /// Boundary pass at the particle surfaces on the state of parity `p` (eq. 6, CLI or simple bounce-back by `mode`),
 /// writing the reflected PDFs into the particle cells, and the momentum exchange (eqs. 7–9) summed per
 /// body in link order (cells in order, directions ascending) into `pc.forces`. Each link of a link cell
@@ -68,8 +71,9 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
         }
         batch.len = 0;
     };
-    // The slot of the last body met (links of one cell and of neighbouring cells mostly share it).
-    let mut last: Option<(u64, usize)> = None;
+    // Slots of the bodies met, direct-mapped by id (links of one cell and of neighbouring cells mostly
+    // share a body, and a block sees few bodies): a hit replaces the binary search.
+    let mut seen = [(u64::MAX, 0usize); BODY_CACHE];
     let link_cells = &pc.link_cells;
     for (j, lc) in link_cells.iter().enumerate() {
         // The PDFs of a link cell lie in up to 19 arrays: ask for those of a cell a few ahead.
@@ -98,15 +102,17 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
             dirs &= dirs - 1;
             let solid = (i as isize + offs[q]) as usize;
             let id = owner[solid] - 1;
-            let k = match last {
-                Some((lid, k)) if lid == id => k,
-                _ => match bodies.binary_search_by_key(&id, |m| m.id) {
+            let e = &mut seen[id as usize % BODY_CACHE];
+            let k = if e.0 == id {
+                e.1
+            } else {
+                match bodies.binary_search_by_key(&id, |m| m.id) {
                     Ok(k) => {
-                        last = Some((id, k));
+                        *e = (id, k);
                         k
                     }
                     Err(_) => continue,
-                },
+                }
             };
             let m = &bodies[k];
             let second = (i as isize - offs[q]) as usize;
