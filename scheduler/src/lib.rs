@@ -9,5 +9,6 @@ pub mod graph;
 pub mod replay;
 pub mod topology;
 pub mod trace;
+pub mod transport;
 
 pub use graph::{GraphBuilder, TaskGraph, TaskId, TaskRecord, TaskSpec};
