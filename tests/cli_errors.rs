@@ -204,6 +204,8 @@ fn vtk_series_is_written() {
 fn bad_particle_settings_name_their_key() {
     let gb = configs().join("granular_box.toml");
     fails_cleanly(&gb, &["--set", "particles.subcycles=0"], &["particles.subcycles"]);
+    fails_cleanly(&gb, &["--set", "particles.rounds=0"], &["particles.rounds"]);
+    fails_cleanly(&gb, &["--set", "particles.rounds=13"], &["particles.rounds", "255"]);
     fails_cleanly(&gb, &["--set", "particles.restitution=1.5"], &["particles.restitution"]);
     fails_cleanly(&gb, &["--set", "particles.friction=-1"], &["particles.friction"]);
     fails_cleanly(&gb, &["--set", "particles.relaxation=2"], &["particles.relaxation"]);

@@ -157,6 +157,20 @@ fn restart_is_bitwise_granular_box() {
     );
 }
 
+/// With several rounds of the contact solve per sub-step the state between steps is still just the
+/// bodies (the rounds' impulses live inside a sub-step), so a restart continues bitwise.
+#[test]
+fn restart_is_bitwise_granular_box_with_rounds() {
+    restart_matches(
+        "granular-rounds",
+        "granular_box.toml",
+        &["particles.rounds=2", "particles.iterations=5"],
+        40,
+        &["--processes", "1"],
+        &["--processes", "3", "--balance", "hilbert", "--interval", "7"],
+    );
+}
+
 /// The blocks of a checkpoint are per block: the same bytes whatever P wrote them; the balancing state
 /// of `corrected` weights travels with the file.
 #[test]

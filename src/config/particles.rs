@@ -18,9 +18,15 @@ pub struct ParticlesConfig {
     /// Coulomb friction coefficient μ.
     #[serde(default = "d_friction")]
     pub friction: f64,
-    /// Projected Gauss–Seidel sweeps over the contacts of a block per sub-step.
+    /// Projected Gauss–Seidel sweeps over the contacts of a block per round.
     #[serde(default = "d_iterations")]
     pub iterations: usize,
+    /// Rounds of the contact solve per sub-step. Between rounds every block's velocity changes are
+    /// summed and published without moving a body, and the next round continues the solve from the
+    /// impulses so far. Contacts a block does not see (beyond its halo) then reach its solve within
+    /// the sub-step instead of one sub-step late. 1: one solve per sub-step.
+    #[serde(default = "d_rounds")]
+    pub rounds: usize,
     /// Relaxation ω of the Gauss–Seidel update, in (0, 2).
     #[serde(default = "d_relaxation")]
     pub relaxation: f64,
@@ -76,6 +82,9 @@ fn d_friction() -> f64 {
 fn d_iterations() -> usize {
     20
 }
+fn d_rounds() -> usize {
+    1
+}
 fn d_relaxation() -> f64 {
     1.0
 }
@@ -93,6 +102,7 @@ impl Default for ParticlesConfig {
             restitution: d_restitution(),
             friction: d_friction(),
             iterations: d_iterations(),
+            rounds: d_rounds(),
             relaxation: d_relaxation(),
             grid_threshold: d_grid_threshold(),
             contact_margin: 0.0,
@@ -117,6 +127,13 @@ impl ParticlesConfig {
             return config_err(format!(
                 "particles.subcycles = {}: must be between 1 and 255",
                 p.subcycles
+            ));
+        }
+        if p.rounds == 0 || p.subcycles * p.rounds > 255 {
+            return config_err(format!(
+                "particles.rounds = {}: must be at least 1, with particles.subcycles × rounds at most 255 ({} here)",
+                p.rounds,
+                p.subcycles * p.rounds
             ));
         }
         if p.iterations == 0 || p.iterations > 100_000 {

@@ -219,6 +219,8 @@ pub struct ParticleSummary {
     pub bodies: usize,
     /// Sub-steps per step.
     pub subcycles: usize,
+    /// Rounds of the contact solve per sub-step.
+    pub rounds: usize,
     /// Sub-steps taken.
     pub substeps: u64,
     /// Owned contacts per sub-step, averaged over the run.

@@ -43,7 +43,7 @@ impl<T: Real> Dispatch<'_, T> {
                     .particles
                     .as_ref()
                     .expect("rigid-body tasks only exist with particles");
-                let g = step * parts.subcycles as u64 + payload.sub as u64 + 1;
+                let g = step * parts.phases() + payload.sub as u64 + 1;
                 if payload.kind == TaskKind::Rb {
                     parts.rb(b.id, g)
                 } else {

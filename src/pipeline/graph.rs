@@ -26,7 +26,7 @@ pub(super) fn add_particle_tasks<T: Real>(
     no_skip: bool,
 ) {
     let nb = parts.blocks.len();
-    let s = parts.subcycles;
+    let s = parts.phases() as usize;
     let active: Vec<usize> = (0..nb).filter(|&b| no_skip || parts.active[b]).collect();
     let task = |b: usize, payload: Payload| spec(owners[b], b, payload);
     // Receivers of each block's interior layers inside the same process (their comm reads it directly).

@@ -200,6 +200,7 @@ fn read_bodies(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> 
     let mut list = Published {
         bodies: Vec::with_capacity(n),
         homes: Vec::with_capacity(n),
+        owned: Vec::new(),
     };
     for _ in 0..n {
         list.bodies.push(r.body()?);
@@ -238,6 +239,10 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         bodies,
         locals,
         deltas,
+        contact_list: Vec::new(),
+        targets: Vec::new(),
+        solved: Vec::new(),
+        owned: Vec::new(),
         contacts: r.u64()? as usize,
         max_penetration: r.f64()?,
         contacts_total: r.u64()?,

@@ -87,6 +87,7 @@ pub fn build_particles(cfg: &Config, ps: &ParticleScene, domain: DomainSpec) -> 
         c.subcycles,
         c.dt.unwrap_or(ps.dt),
     )
+    .map(|p| p.with_rounds(c.rounds))
 }
 
 /// The pinning policy of a configuration.

@@ -73,7 +73,7 @@ fn apply(vel: &mut [Vel], c: &Contact, row: &Row, j: DVec3) {
 /// `p.relaxation`; updates the velocities of `bodies` in place. See the module doc for the constraints.
 pub fn resolve(bodies: &mut [Body], contacts: &[Contact], p: &RigidParams, dt: f64) -> SolverStats {
     let mut impulses = Vec::new();
-    let (stats, vel) = solve(bodies, contacts, p, dt, &mut impulses);
+    let (stats, vel) = solve(bodies, contacts, p, dt, None, &mut impulses);
     for (b, v) in bodies.iter_mut().zip(&vel) {
         if !b.fixed {
             b.velocity = v.v;
@@ -93,7 +93,104 @@ pub fn resolve_impulses(
     dt: f64,
     impulses: &mut Vec<DVec3>,
 ) -> SolverStats {
-    solve(bodies, contacts, p, dt, impulses).0
+    solve(bodies, contacts, p, dt, None, impulses).0
+}
+
+/// A solve that continues an earlier one of the same contacts: the velocity targets it fixed (from the
+/// approach speeds before any impulse of the sub-step, so restitution is not re-applied) and the total
+/// impulse each contact has given so far, whose effect `bodies`' velocities already include.
+#[derive(Clone, Copy, Debug)]
+pub struct WarmStart<'a> {
+    /// Velocity target of each contact, as [`resolve_targets`] returns them.
+    pub targets: &'a [f64],
+    /// Total impulse of each contact so far (on body `a`).
+    pub impulses: &'a [DVec3],
+}
+
+/// The velocity target u·n ≥ target of each contact for bodies at their velocities before this sub-step's
+/// impulses (restitution, speculative gap or Baumgarte term; module docs): what a [`WarmStart`] carries
+/// from the first solve of a sub-step into the next ones.
+pub fn resolve_targets(bodies: &[Body], contacts: &[Contact], p: &RigidParams, dt: f64) -> Vec<f64> {
+    let vel = velocities(bodies);
+    let inv = inverse_masses(bodies);
+    contacts
+        .iter()
+        .map(|c| row(bodies, &vel, &inv, c, p, dt).target)
+        .collect()
+}
+
+/// Projected Gauss–Seidel as [`resolve_impulses`], continued from `warm`: each contact starts from its
+/// impulse so far (normal part ≥ 0, tangential part within the cone) and its fixed target, `bodies`
+/// carry the velocities those impulses produced; `impulses` returns the new totals (their difference
+/// from `warm.impulses` is what this solve adds).
+pub fn resolve_impulses_warm(
+    bodies: &[Body],
+    contacts: &[Contact],
+    p: &RigidParams,
+    dt: f64,
+    warm: WarmStart<'_>,
+    impulses: &mut Vec<DVec3>,
+) -> SolverStats {
+    assert_eq!(warm.targets.len(), contacts.len(), "one target per contact");
+    assert_eq!(warm.impulses.len(), contacts.len(), "one impulse per contact");
+    solve(bodies, contacts, p, dt, Some(warm), impulses).0
+}
+
+fn velocities(bodies: &[Body]) -> Vec<Vel> {
+    bodies
+        .iter()
+        .map(|b| Vel {
+            v: b.velocity,
+            w: b.angular_velocity,
+        })
+        .collect()
+}
+
+fn inverse_masses(bodies: &[Body]) -> Vec<(f64, f64)> {
+    bodies.iter().map(|b| (b.inv_mass(), b.inv_inertia())).collect()
+}
+
+/// The constraint rows of contact `c` at velocities `vel`, with zero impulses.
+fn row(bodies: &[Body], vel: &[Vel], inv: &[(f64, f64)], c: &Contact, p: &RigidParams, dt: f64) -> Row {
+    let a = &bodies[c.a];
+    let ra = c.point - a.position;
+    let (im_a, ii_a) = inv[c.a];
+    // Effective inverse masses; K_t is isotropic in the tangent plane because r ∥ n for spheres.
+    let mut k_n = im_a + ii_a * ra.cross(c.normal).length_squared();
+    let mut k_t = im_a + ii_a * ra.length_squared();
+    let (mut rb, mut im_b, mut ii_b) = (DVec3::ZERO, 0.0, 0.0);
+    if let Some(b) = c.b {
+        rb = c.point - bodies[b].position;
+        (im_b, ii_b) = inv[b];
+        k_n += im_b + ii_b * rb.cross(c.normal).length_squared();
+        k_t += im_b + ii_b * rb.length_squared();
+    }
+    let mut row = Row {
+        ra,
+        rb,
+        im_a,
+        ii_a,
+        im_b,
+        ii_b,
+        k_n,
+        k_t,
+        target: 0.0,
+        lambda_n: 0.0,
+        lambda_t: DVec3::ZERO,
+    };
+    let un0 = rel_velocity(vel, c, &row).dot(c.normal);
+    let bias = if c.depth > 0.0 {
+        p.position_correction * c.depth / dt
+    } else {
+        c.depth / dt
+    };
+    // Restitution if approaching fast and touching within this step (gap + u_n dt ≤ 0).
+    row.target = if un0 < -p.restitution_threshold && un0 * dt <= c.depth {
+        (-p.restitution * un0).max(bias)
+    } else {
+        bias
+    };
+    row
 }
 
 fn solve(
@@ -101,6 +198,7 @@ fn solve(
     contacts: &[Contact],
     p: &RigidParams,
     dt: f64,
+    warm: Option<WarmStart<'_>>,
     impulses: &mut Vec<DVec3>,
 ) -> (SolverStats, Vec<Vel>) {
     let mut stats = SolverStats::default();
@@ -108,55 +206,19 @@ fn solve(
     if contacts.is_empty() {
         return (stats, Vec::new());
     }
-    let mut vel: Vec<Vel> = bodies
-        .iter()
-        .map(|b| Vel {
-            v: b.velocity,
-            w: b.angular_velocity,
-        })
-        .collect();
-    let inv: Vec<(f64, f64)> = bodies.iter().map(|b| (b.inv_mass(), b.inv_inertia())).collect();
+    let mut vel = velocities(bodies);
+    let inv = inverse_masses(bodies);
     let mut rows: Vec<Row> = contacts
         .iter()
-        .map(|c| {
-            let a = &bodies[c.a];
-            let ra = c.point - a.position;
-            let (im_a, ii_a) = inv[c.a];
-            // Effective inverse masses; K_t is isotropic in the tangent plane because r ∥ n for spheres.
-            let mut k_n = im_a + ii_a * ra.cross(c.normal).length_squared();
-            let mut k_t = im_a + ii_a * ra.length_squared();
-            let (mut rb, mut im_b, mut ii_b) = (DVec3::ZERO, 0.0, 0.0);
-            if let Some(b) = c.b {
-                rb = c.point - bodies[b].position;
-                (im_b, ii_b) = inv[b];
-                k_n += im_b + ii_b * rb.cross(c.normal).length_squared();
-                k_t += im_b + ii_b * rb.length_squared();
+        .enumerate()
+        .map(|(k, c)| {
+            let mut row = row(bodies, &vel, &inv, c, p, dt);
+            if let Some(w) = warm {
+                row.target = w.targets[k];
+                let j = w.impulses[k];
+                row.lambda_n = j.dot(c.normal);
+                row.lambda_t = j - c.normal * row.lambda_n;
             }
-            let mut row = Row {
-                ra,
-                rb,
-                im_a,
-                ii_a,
-                im_b,
-                ii_b,
-                k_n,
-                k_t,
-                target: 0.0,
-                lambda_n: 0.0,
-                lambda_t: DVec3::ZERO,
-            };
-            let un0 = rel_velocity(&vel, c, &row).dot(c.normal);
-            let bias = if c.depth > 0.0 {
-                p.position_correction * c.depth / dt
-            } else {
-                c.depth / dt
-            };
-            // Restitution if approaching fast and touching within this step (gap + u_n dt ≤ 0).
-            row.target = if un0 < -p.restitution_threshold && un0 * dt <= c.depth {
-                (-p.restitution * un0).max(bias)
-            } else {
-                bias
-            };
             stats.max_penetration = stats.max_penetration.max(c.depth);
             row
         })

@@ -19,7 +19,7 @@ pub mod integrate;
 
 pub use body::{Body, Plane};
 pub use contact::{detect, detect_all_pairs, detect_grid, Contact};
-pub use hard_contact::{resolve, resolve_impulses, SolverStats};
+pub use hard_contact::{resolve, resolve_impulses, resolve_impulses_warm, resolve_targets, SolverStats, WarmStart};
 pub use integrate::{apply_forces, integrate, integrate_positions};
 
 use glam::DVec3;

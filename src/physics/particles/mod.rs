@@ -19,7 +19,9 @@
 //!   in ascending block-id order (overlapping block-Jacobi between blocks, Gauss–Seidel inside a block).
 //!   Each contact's impulse acts on both of its bodies exactly once, so linear and angular momentum are
 //!   conserved to rounding whatever the block layout. Cross-block coupling lags by one sub-step: more
-//!   sub-steps with fewer sweeps each (`particles.subcycles`, `particles.iterations`) tighten it.
+//!   sub-steps with fewer sweeps each (`particles.subcycles`, `particles.iterations`), or more rounds of
+//!   the solve inside each sub-step (`particles.rounds`: the velocity changes are exchanged between
+//!   rounds and the solve continues from the impulses so far), tighten it.
 //!
 //! Requirements checked at set-up and per sub-step: `2 r_max + contact_margin` plus the largest distance a
 //! body moves in one sub-step must stay below the smallest block edge, so that everything a block needs
@@ -59,14 +61,33 @@ pub struct Delta {
     pub dw: DVec3,
 }
 
-/// The local bodies a block published after a sub-step, with each body's home block (computed once, by
-/// the publisher, from the new position).
+/// The total impulse a block's solve has given one contact it owns so far in the current sub-step, keyed
+/// by the ids of what touches (read by the neighbours' next round, `particles.rounds` > 1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OwnedImpulse {
+    /// Id of body a (the lower id of a sphere pair, or the sphere of a plane contact).
+    pub a: u64,
+    /// Id of body b, or the plane's id with [`PLANE_KEY`] set.
+    pub b: u64,
+    /// Impulse on a (b receives its negative).
+    pub impulse: DVec3,
+}
+
+/// Set in [`OwnedImpulse::b`] when the contact is with a plane (plane ids and body ids are separate
+/// spaces).
+pub const PLANE_KEY: u64 = 1 << 63;
+
+/// The local bodies a block published after a sub-step (or a round of one), with each body's home block
+/// (computed once, by the publisher, from the new position), and its owned contacts' impulses so far.
 #[derive(Clone, Debug, Default)]
 pub struct Published {
     /// Bodies sorted by id.
     pub bodies: Vec<Body>,
     /// Home block of each body.
     pub homes: Vec<u32>,
+    /// Impulses of the contacts the block owns, sorted by (a, b); only with more than one round, and
+    /// read only inside a sub-step (so not part of the block format).
+    pub owned: Vec<OwnedImpulse>,
 }
 
 /// What `rb(b, s)` computed for block b (read by `rb_sync` of b and its neighbours).
@@ -79,6 +100,16 @@ pub struct Work {
     pub locals: usize,
     /// Velocity changes of the shadows, sorted by id (one entry per id).
     pub deltas: Vec<Delta>,
+    /// With more than one round: the contacts of the current sub-step (indices into `bodies`), their
+    /// velocity targets and the block's solution so far (total impulse per contact), kept for the next
+    /// round; and the owned contacts' impulses, published by `rb_sync`.
+    pub contact_list: Vec<blockflow_kernels::rigid::Contact>,
+    /// Velocity target of each contact of `contact_list`.
+    pub targets: Vec<f64>,
+    /// Total impulse of each contact of `contact_list` in the block's last solve.
+    pub solved: Vec<DVec3>,
+    /// Owned contacts' total impulses, sorted by (a, b).
+    pub owned: Vec<OwnedImpulse>,
     /// Contacts owned by the block in this sub-step (K of Table 1).
     pub contacts: usize,
     /// Largest penetration among the owned contacts (before resolution).
@@ -186,6 +217,9 @@ pub struct Particles {
     pub params: RigidParams,
     /// Sub-steps S per time step.
     pub subcycles: usize,
+    /// Rounds of the contact solve per sub-step (`particles.rounds`): between rounds every block's
+    /// velocity changes are summed and published, and the next round continues the solve from them.
+    pub rounds: usize,
     /// Time per step (1 in lattice units; fluid-off scenes may choose another).
     pub dt: f64,
     /// Per-block state, in block id order.
@@ -267,6 +301,7 @@ impl Particles {
         let mut parts = Particles {
             params,
             subcycles,
+            rounds: 1,
             dt,
             blocks: Vec::new(),
             active: vec![false; nb],
@@ -286,6 +321,17 @@ impl Particles {
         }
         parts.blocks = blocks;
         Ok(parts)
+    }
+
+    /// The same bodies with `rounds` rounds of the contact solve per sub-step (at least 1).
+    pub fn with_rounds(mut self, rounds: usize) -> Self {
+        self.rounds = rounds.max(1);
+        self
+    }
+
+    /// Rigid-body phases per step: sub-steps times rounds (each phase is one `rb`/`rb_sync` pair).
+    pub fn phases(&self) -> u64 {
+        (self.subcycles * self.rounds) as u64
     }
 
     /// Whether any body can move (fixed bodies alone are mapped once and need no rigid-body tasks).
@@ -341,7 +387,7 @@ impl Particles {
 
     /// Parity of the published lists holding the state after `steps` whole steps.
     pub fn parity(&self, steps: u64) -> usize {
-        ((steps * self.subcycles as u64) % 2) as usize
+        ((steps * self.phases()) % 2) as usize
     }
 
     /// All bodies after `steps` whole steps, sorted by id (the global view for output and observables).
@@ -491,7 +537,7 @@ impl Particles {
     pub fn advance_serial(&mut self, start_step: u64, steps: u64) -> std::result::Result<(), String> {
         let bodies = self.bodies(start_step);
         self.update_active(steps, &bodies);
-        let s = self.subcycles as u64;
+        let s = self.phases();
         for k in 0..steps * s {
             let g = start_step * s + k + 1;
             for b in 0..self.blocks.len() {
@@ -506,7 +552,9 @@ impl Particles {
                     unsafe { self.rb_sync(b, g) };
                 }
             }
-            self.collect_stats(1);
+            if g.is_multiple_of(self.rounds as u64) {
+                self.collect_stats(1);
+            }
             if let Some(e) = self.take_error() {
                 return Err(e);
             }

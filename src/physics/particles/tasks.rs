@@ -1,4 +1,6 @@
-//! The two tasks of one rigid-body sub-step g (1-based over the whole run; parity `g % 2`):
+//! The two tasks of one rigid-body phase g (1-based over the whole run; parity `g % 2`). A sub-step is
+//! R phases (`particles.rounds`, usually 1): the first solves the sub-step's contacts, each later one
+//! continues that solve (round r = (g − 1) mod R), and only the last moves the bodies.
 //!
 //! | task | reads | writes |
 //! |---|---|---|
@@ -12,6 +14,11 @@
 //! give their bodies (locals and shadows).
 //! `rb_sync(b, g)`: add every neighbour's changes (b's own included) to the locals in ascending block-id
 //! order, integrate positions and orientations (semi-implicit Euler), wrap periodic positions, publish.
+//! In a round that is not the last of its sub-step it publishes the new velocities at the same positions
+//! (with the owned contacts' impulses so far), and the next round's `rb` gathers the same bodies in the
+//! same order, re-uses the first round's contacts and targets and continues the Gauss–Seidel sweeps from
+//! the impulses so far: contacts beyond b's halo, which b cannot solve, then reach its solve through the
+//! velocities within the sub-step.
 //!
 //! Edges (symmetric neighbourhoods make these enough): `rb_sync(n, g-1) → rb(b, g)` and
 //! `rb(n, g) → rb_sync(b, g)` for every neighbour n of b (b included). Write-after-read follows by
@@ -19,8 +26,11 @@
 //! `rb_sync(b, g)`; `rb_sync(b, g+2)` overwrites the list `rb(n, g+1)` read, and it waits for
 //! `rb(b, g+2)`, which waits for `rb_sync(n, g+1)`, which waits for `rb(n, g+1)`.
 
-use super::{dist_to_box, Delta, Particles};
-use blockflow_kernels::rigid::{apply_forces, detect, integrate_positions, resolve_impulses};
+use super::{dist_to_box, Delta, OwnedImpulse, Particles, PLANE_KEY};
+use blockflow_kernels::rigid::{
+    apply_forces, detect, integrate_positions, resolve_impulses, resolve_impulses_warm, resolve_targets, Body, Contact,
+    Plane, WarmStart,
+};
 
 impl Particles {
     /// Task `rb(b, g)`; see the module docs.
@@ -65,10 +75,17 @@ impl Particles {
             c
         }));
         let dt = self.dt_sub();
+        let round = ((g - 1) % self.rounds as u64) as usize;
+        if round > 0 {
+            self.rb_round(b, prev, w);
+            return;
+        }
+        w.contact_list.clear();
+        w.owned.clear();
         apply_forces(&mut w.bodies, &self.params, dt);
         w.contacts = 0;
         w.max_penetration = 0.0;
-        if (g - 1).is_multiple_of(self.subcycles as u64) {
+        if (g - 1).is_multiple_of(self.phases()) {
             w.contacts_step = 0;
             w.seen_step = 0;
             w.scanned_step = 0;
@@ -87,36 +104,114 @@ impl Particles {
         // impulses of the owned ones account for the load the neighbourhood puts on them.
         let mut impulses = Vec::new();
         resolve_impulses(&w.bodies, &contacts, p, dt, &mut impulses);
+        for c in contacts.iter().filter(|c| c.a < w.locals) {
+            w.contacts += 1;
+            w.max_penetration = w.max_penetration.max(c.depth);
+        }
+        w.contacts_total += w.contacts as u64;
+        w.contacts_step += w.contacts as u64;
+        w.max_penetration_total = w.max_penetration_total.max(w.max_penetration);
+        self.record_owned(w, &blk.planes, &contacts, &impulses, None);
+        if self.rounds > 1 {
+            w.targets = resolve_targets(&w.bodies, &contacts, p, dt);
+            w.solved = impulses;
+            w.contact_list = contacts;
+        }
+    }
+
+    /// A later round of a sub-step's contact solve in block `b` (`particles.rounds` > 1): the bodies
+    /// gathered again carry the velocities every owner's impulses so far gave them (the syncs between
+    /// rounds move no body), and the solve of the same contacts continues from those impulses (the
+    /// block's own for the contacts it owns, the owners' published ones for the others) with the
+    /// targets of the first round. The owned contacts' added impulses become the velocity changes.
+    fn rb_round(&self, b: usize, prev: usize, w: &mut super::Work) {
+        let blk = &self.blocks[b];
+        let contacts = std::mem::take(&mut w.contact_list);
+        if contacts.is_empty() {
+            w.owned.clear();
+            return;
+        }
+        let bodies = &w.bodies;
+        let initial: Vec<glam::DVec3> = contacts
+            .iter()
+            .enumerate()
+            .map(|(k, c)| {
+                if c.a < w.locals {
+                    return w.solved[k];
+                }
+                let key = (bodies[c.a].id, contact_key_b(c, bodies, &blk.planes));
+                blk.near
+                    .iter()
+                    .find_map(|&n| {
+                        // SAFETY: rb(b, g) runs after rb_sync(n, g - 1) wrote this list (module docs).
+                        let list = unsafe { &self.blocks[n].published(prev).owned };
+                        list.binary_search_by_key(&key, |e| (e.a, e.b))
+                            .ok()
+                            .map(|i| list[i].impulse)
+                    })
+                    .unwrap_or(glam::DVec3::ZERO)
+            })
+            .collect();
+        let mut impulses = Vec::new();
+        let warm = WarmStart {
+            targets: &w.targets,
+            impulses: &initial,
+        };
+        resolve_impulses_warm(&w.bodies, &contacts, &self.params, self.dt_sub(), warm, &mut impulses);
+        self.record_owned(w, &blk.planes, &contacts, &impulses, Some(&initial));
+        w.solved = impulses;
+        w.contact_list = contacts;
+    }
+
+    /// Turns the owned contacts' impulses (minus `initial`, what earlier rounds already applied) into
+    /// the velocity changes of the bodies they touch (`w.deltas`, one entry per body id) and records
+    /// their totals in `w.owned` for the neighbours' next round.
+    fn record_owned(
+        &self,
+        w: &mut super::Work,
+        planes: &[Plane],
+        contacts: &[Contact],
+        impulses: &[glam::DVec3],
+        initial: Option<&[glam::DVec3]>,
+    ) {
         let locals = w.locals;
         let n = w.bodies.len();
         let mut dv = vec![glam::DVec3::ZERO; n];
         let mut dw = vec![glam::DVec3::ZERO; n];
         let mut touched = vec![false; n];
-        for (c, j) in contacts.iter().zip(&impulses) {
+        w.owned.clear();
+        for (k, (c, total)) in contacts.iter().zip(impulses).enumerate() {
             // Owned: the lower-id body (a) or the sphere of a plane contact is local.
             if c.a >= locals {
                 continue;
             }
-            w.contacts += 1;
-            w.max_penetration = w.max_penetration.max(c.depth);
+            if self.rounds > 1 {
+                w.owned.push(OwnedImpulse {
+                    a: w.bodies[c.a].id,
+                    b: contact_key_b(c, &w.bodies, planes),
+                    impulse: *total,
+                });
+            }
+            let j = match initial {
+                Some(i) => *total - i[k],
+                None => *total,
+            };
             let a = &w.bodies[c.a];
             if !a.fixed {
-                dv[c.a] += *j * a.inv_mass();
-                dw[c.a] += (c.point - a.position).cross(*j) * a.inv_inertia();
+                dv[c.a] += j * a.inv_mass();
+                dw[c.a] += (c.point - a.position).cross(j) * a.inv_inertia();
                 touched[c.a] = true;
             }
             if let Some(o) = c.b {
                 let b = &w.bodies[o];
                 if !b.fixed {
-                    dv[o] -= *j * b.inv_mass();
-                    dw[o] -= (c.point - b.position).cross(*j) * b.inv_inertia();
+                    dv[o] -= j * b.inv_mass();
+                    dw[o] -= (c.point - b.position).cross(j) * b.inv_inertia();
                     touched[o] = true;
                 }
             }
         }
-        w.contacts_total += w.contacts as u64;
-        w.contacts_step += w.contacts as u64;
-        w.max_penetration_total = w.max_penetration_total.max(w.max_penetration);
+        w.owned.sort_unstable_by_key(|e| (e.a, e.b));
         // Velocity changes by body id (slots are sorted by id; periodic images of one body merged).
         let mut order: Vec<usize> = (0..n).filter(|&i| touched[i]).collect();
         order.sort_by_key(|&i| (w.bodies[i].id, i));
@@ -146,7 +241,12 @@ impl Particles {
         let out = &mut *blk.published[(g % 2) as usize].get();
         out.bodies.clear();
         out.homes.clear();
+        out.owned.clear();
+        out.owned.extend_from_slice(&w.owned);
         let dt = self.dt_sub();
+        // Between the rounds of a sub-step only the velocities change.
+        let last_round = g.is_multiple_of(self.rounds as u64);
+        let sub = (g - 1) / self.rounds as u64 + 1;
         for body in &w.bodies[..w.locals] {
             let mut x = *body;
             for &m in &blk.near {
@@ -155,6 +255,11 @@ impl Particles {
                     x.velocity += wm.deltas[k].dv;
                     x.angular_velocity += wm.deltas[k].dw;
                 }
+            }
+            if !last_round {
+                out.bodies.push(x);
+                out.homes.push(self.home(x.position) as u32);
+                continue;
             }
             let old = x.position;
             integrate_positions(std::slice::from_mut(&mut x), dt);
@@ -166,10 +271,10 @@ impl Particles {
                     g,
                     b,
                     format!(
-                        "particles unstable at sub-step {g} (step {}): body {} in block {b} moved {moved:.3e} cells in \
+                        "particles unstable at sub-step {sub} (step {}): body {} in block {b} moved {moved:.3e} cells in \
                          one sub-step (at most {:.3e} allowed by the block size); raise particles.subcycles, lower \
                          the time step or the forces",
-                        (g - 1) / self.subcycles as u64 + 1,
+                        (sub - 1) / self.subcycles as u64 + 1,
                         x.id,
                         self.max_move
                     ),
@@ -180,7 +285,7 @@ impl Particles {
                     b,
                     format!(
                         "body {} left the blocks that have rigid-body tasks (from block {b} into block {home}) at \
-                         sub-step {g}; lower processes.steps_per_graph",
+                         sub-step {sub}; lower processes.steps_per_graph",
                         x.id
                     ),
                 );
@@ -188,5 +293,15 @@ impl Particles {
             out.bodies.push(x);
             out.homes.push(home as u32);
         }
+    }
+}
+
+/// The second key of contact `c` for [`OwnedImpulse::b`]: body b's id, or the plane's id with
+/// [`PLANE_KEY`] set.
+fn contact_key_b(c: &Contact, bodies: &[Body], planes: &[Plane]) -> u64 {
+    match (c.b, c.plane) {
+        (Some(o), _) => bodies[o].id,
+        (None, Some(k)) => planes[k].id | PLANE_KEY,
+        (None, None) => PLANE_KEY | (u64::MAX >> 1),
     }
 }
