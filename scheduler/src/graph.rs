@@ -31,11 +31,13 @@ impl TaskSpec {
     }
 }
 
-/// Builder: add tasks, then edges `before → after`, then [`GraphBuilder::build`].
+/// Builder: add tasks, then edges `before → after` (and external dependencies), then
+/// [`GraphBuilder::build`].
 #[derive(Clone, Debug, Default)]
 pub struct GraphBuilder {
     specs: Vec<TaskSpec>,
     edges: Vec<(TaskId, TaskId)>,
+    external: Vec<u32>,
 }
 
 impl GraphBuilder {
@@ -47,7 +49,15 @@ impl GraphBuilder {
     /// Adds a task and returns its id (ids are dense, in insertion order).
     pub fn add(&mut self, spec: TaskSpec) -> TaskId {
         self.specs.push(spec);
+        self.external.push(0);
         (self.specs.len() - 1) as TaskId
+    }
+
+    /// Adds `n` dependencies of `task` on something outside the graph (a message from another rank):
+    /// the task becomes ready only when its predecessors have finished *and* the driver has released it
+    /// `n` times ([`crate::executor::Executor::run_with_progress`]).
+    pub fn external(&mut self, task: TaskId, n: u32) {
+        self.external[task as usize] += n;
     }
 
     /// Adds the dependency `before → after` (duplicates are removed at build time).
@@ -94,7 +104,11 @@ impl GraphBuilder {
         // Kahn's algorithm: every task must be reachable in topological order.
         let mut deg = indegree.clone();
         let mut stack: Vec<TaskId> = (0..n as TaskId).filter(|&t| deg[t as usize] == 0).collect();
-        let roots = stack.clone();
+        let roots: Vec<TaskId> = stack
+            .iter()
+            .copied()
+            .filter(|&t| self.external[t as usize] == 0)
+            .collect();
         let mut seen = 0;
         while let Some(t) = stack.pop() {
             seen += 1;
@@ -113,6 +127,10 @@ impl GraphBuilder {
             ));
         }
         let processes = self.specs.iter().map(|s| s.owner + 1).max().unwrap_or(0) as usize;
+        for (d, e) in indegree.iter_mut().zip(&self.external) {
+            *d += e;
+        }
+        let external_total = self.external.iter().map(|&e| e as u64).sum();
         Ok(TaskGraph {
             specs: self.specs,
             offsets,
@@ -120,6 +138,8 @@ impl GraphBuilder {
             indegree,
             roots,
             processes,
+            external: self.external,
+            external_total,
         })
     }
 }
@@ -133,6 +153,8 @@ pub struct TaskGraph {
     indegree: Vec<u32>,
     roots: Vec<TaskId>,
     processes: usize,
+    external: Vec<u32>,
+    external_total: u64,
 }
 
 impl TaskGraph {
@@ -161,14 +183,24 @@ impl TaskGraph {
         &self.succ[self.offsets[t as usize] as usize..self.offsets[t as usize + 1] as usize]
     }
 
-    /// Number of predecessors of each task.
+    /// Number of predecessors of each task, external dependencies included.
     pub fn indegrees(&self) -> &[u32] {
         &self.indegree
     }
 
-    /// Tasks without predecessors.
+    /// Tasks without predecessors (in the graph or outside it).
     pub fn roots(&self) -> &[TaskId] {
         &self.roots
+    }
+
+    /// External dependencies of each task ([`GraphBuilder::external`]).
+    pub fn external(&self) -> &[u32] {
+        &self.external
+    }
+
+    /// External dependencies of all tasks together: the releases a run of the graph waits for.
+    pub fn external_total(&self) -> u64 {
+        self.external_total
     }
 
     /// One more than the largest owner (the process count the graph needs at least).
@@ -276,6 +308,19 @@ mod tests {
         assert_eq!(t.indegrees(), &[0, 1, 2]);
         assert_eq!(t.roots(), &[a]);
         assert_eq!(t.processes(), 2);
+        assert_eq!(t.external_total(), 0);
+        // An external dependency counts in the in-degree and keeps a task out of the roots.
+        let mut g = GraphBuilder::new();
+        let a = g.add(spec(0));
+        let b = g.add(spec(0));
+        let c = g.add(spec(0));
+        g.edge(a, b);
+        g.external(a, 1);
+        g.external(c, 2);
+        let t = g.build().unwrap();
+        assert_eq!(t.indegrees(), &[1, 1, 2]);
+        assert!(t.roots().is_empty());
+        assert_eq!((t.external(), t.external_total()), (&[1, 0, 2][..], 3));
         let mut g = GraphBuilder::new();
         let a = g.add(spec(0));
         let b = g.add(spec(0));

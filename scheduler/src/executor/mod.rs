@@ -270,6 +270,7 @@ impl Executor {
             done: AtomicBool::new(false),
             done_lock: Mutex::new(()),
             done_cv: Condvar::new(),
+            driver: Mutex::new(None),
         });
         for _ in 0..n {
             // Cannot fail: every worker holds a receiver until it gets its message.
@@ -328,6 +329,42 @@ impl Executor {
     /// If `graph.processes()` exceeds the pool's `P`, if called from inside a task of this executor, or
     /// (resumed) if a task panicked.
     pub fn run<F: Fn(TaskId, &TaskSpec, Worker) + Sync>(&self, graph: &TaskGraph, task: F) -> RunRecords {
+        assert_eq!(
+            graph.external_total(),
+            0,
+            "a graph with external dependencies runs with Executor::run_with_progress"
+        );
+        self.run_inner(graph, task, None)
+    }
+
+    /// Runs a graph whose tasks may also wait for things outside it ([`crate::GraphBuilder::external`]:
+    /// messages from other ranks), like [`Executor::run`]. The calling thread (the driver) calls
+    /// `progress` again and again while the run is under way: it completes what it can (receives
+    /// messages, sends what tasks queued) and releases each satisfied external dependency through the
+    /// [`Releaser`]; it returns whether it did anything (when it did not, the driver backs off: yields,
+    /// then parks for at most 50 µs or until the last running task retires, or until a task or a message
+    /// unparks it). The run ends when every external dependency was released and every task has
+    /// finished; `progress` is called once more after that (to send what the last tasks queued), and
+    /// must not release anything then.
+    ///
+    /// # Panics
+    ///
+    /// As [`Executor::run`]; also if `progress` releases a task more often than it has external
+    /// dependencies, or releases after the end.
+    pub fn run_with_progress<F, P>(&self, graph: &TaskGraph, task: F, mut progress: P) -> RunRecords
+    where
+        F: Fn(TaskId, &TaskSpec, Worker) + Sync,
+        P: FnMut(&mut Releaser<'_>) -> bool,
+    {
+        self.run_inner(graph, task, Some(&mut progress))
+    }
+
+    fn run_inner<F: Fn(TaskId, &TaskSpec, Worker) + Sync>(
+        &self,
+        graph: &TaskGraph,
+        task: F,
+        progress: Option<&mut dyn FnMut(&mut Releaser<'_>) -> bool>,
+    ) -> RunRecords {
         assert!(
             graph.processes() <= self.shared.processes,
             "the task graph has tasks owned by process {} but the pool has only {} processes",
@@ -337,6 +374,11 @@ impl Executor {
         self.assert_not_worker("run");
         let n = graph.len();
         if n == 0 {
+            if let Some(p) = progress {
+                let mut r = Releaser::idle();
+                p(&mut r);
+                assert_eq!(r.released, 0, "an empty graph has nothing to release");
+            }
             return RunRecords::default();
         }
         let sh = &*self.shared;
@@ -410,7 +452,10 @@ impl Executor {
             }
         }
 
-        sh.wait_done();
+        match progress {
+            None => sh.wait_done(),
+            Some(p) => drive(sh, graph, &cache.counters, &job.aborted, p),
+        }
         let wall_ns = start.elapsed().as_nanos() as u64;
         sh.ctl.job.store(std::ptr::null_mut(), Ordering::Relaxed);
         drop(cache);
@@ -452,6 +497,98 @@ impl Executor {
         if let Some(payload) = b.panic.into_inner().unwrap_or_else(PoisonError::into_inner) {
             panic::resume_unwind(payload);
         }
+    }
+}
+
+/// What the driver of a run with external dependencies uses to release them
+/// ([`Executor::run_with_progress`]).
+pub struct Releaser<'a> {
+    shared: Option<&'a Shared>,
+    graph: Option<&'a TaskGraph>,
+    counters: &'a [AtomicU32],
+    released: u64,
+    left: u64,
+}
+
+impl Releaser<'_> {
+    fn idle() -> Self {
+        Releaser {
+            shared: None,
+            graph: None,
+            counters: &[],
+            released: 0,
+            left: 0,
+        }
+    }
+
+    /// Satisfies one external dependency of task `t`; when it was the last thing `t` waited for, `t`
+    /// becomes ready in its owner process.
+    ///
+    /// # Panics
+    ///
+    /// If the run has no external dependency left to release.
+    pub fn release(&mut self, t: TaskId) {
+        assert!(self.left > 0, "task {t} released after every external dependency was");
+        let (sh, graph) = (self.shared.expect("a run"), self.graph.expect("a run"));
+        self.left -= 1;
+        self.released += 1;
+        if self.counters[t as usize].fetch_sub(1, Ordering::AcqRel) == 1 {
+            // Counted before it is published, as a successor released by a worker.
+            sh.pending.fetch_add(1, Ordering::AcqRel);
+            let owner = graph.spec(t).owner as usize;
+            sh.injectors[owner].push(t);
+            sh.wake_for(owner);
+        }
+    }
+
+    /// External dependencies not yet released in this run.
+    pub fn outstanding(&self) -> u64 {
+        self.left
+    }
+}
+
+/// The driver's loop of a run with external dependencies (see [`Executor::run_with_progress`]).
+fn drive(
+    sh: &Shared,
+    graph: &TaskGraph,
+    counters: &[AtomicU32],
+    aborted: &AtomicBool,
+    progress: &mut dyn FnMut(&mut Releaser<'_>) -> bool,
+) {
+    *lock(&sh.driver) = Some(thread::current());
+    let mut r = Releaser {
+        shared: Some(sh),
+        graph: Some(graph),
+        counters,
+        released: 0,
+        left: graph.external_total(),
+    };
+    let mut idle = 0u32;
+    loop {
+        let did = progress(&mut r);
+        let idle_pool = sh.pending.load(Ordering::Acquire) == 0;
+        if idle_pool && (r.left == 0 || aborted.load(Ordering::Acquire)) {
+            // Done, or a task panicked: the rest of the graph is abandoned (the panic is resumed).
+            break;
+        }
+        if did {
+            idle = 0;
+            continue;
+        }
+        idle += 1;
+        if idle < 8 {
+            std::hint::spin_loop();
+        } else if idle < 16 {
+            thread::yield_now();
+        } else {
+            thread::park_timeout(std::time::Duration::from_micros(50));
+        }
+    }
+    *lock(&sh.driver) = None;
+    if !aborted.load(Ordering::Acquire) {
+        // What the last tasks queued.
+        progress(&mut r);
+        assert_eq!(r.left, 0);
     }
 }
 

@@ -39,6 +39,9 @@ pub(super) struct Shared {
     pub(super) done: AtomicBool,
     pub(super) done_lock: Mutex<()>,
     pub(super) done_cv: Condvar,
+    /// The driver of a run with external dependencies, unparked whenever `pending` reaches zero (it
+    /// may have releases to make or be waiting for the end).
+    pub(super) driver: Mutex<Option<Thread>>,
 }
 
 pub(super) struct Control {
@@ -136,8 +139,13 @@ impl Shared {
     pub(super) fn retire_many(&self, n: usize) {
         if self.pending.fetch_sub(n, Ordering::AcqRel) == n {
             self.done.store(true, Ordering::SeqCst);
-            let _g = lock(&self.done_lock);
-            self.done_cv.notify_all();
+            {
+                let _g = lock(&self.done_lock);
+                self.done_cv.notify_all();
+            }
+            if let Some(t) = lock(&self.driver).as_ref() {
+                t.unpark();
+            }
         }
     }
 

@@ -312,3 +312,116 @@ fn overhead_is_measured() {
     assert!(ns > 0.0 && ns.is_finite());
     assert_eq!(empty_task_overhead_ns(&pool, 0), 0.0);
 }
+
+/// External dependencies: a task waits for its predecessors and for the driver's releases; the run ends
+/// only when every release was made and every task ran.
+#[test]
+fn external_dependencies_wait_for_the_driver() {
+    let pool = Executor::new(PoolConfig::unpinned(2, 2)).unwrap();
+    // a → b; c waits for one release, d for c and two releases.
+    let mut g = GraphBuilder::new();
+    let a = g.add(TaskSpec::for_owner(0));
+    let b = g.add(TaskSpec::for_owner(1));
+    let c = g.add(TaskSpec::for_owner(1));
+    let d = g.add(TaskSpec::for_owner(0));
+    g.edge(a, b);
+    g.edge(c, d);
+    g.external(c, 1);
+    g.external(d, 2);
+    let g = g.build().unwrap();
+    for round in 0..50 {
+        let seq = AtomicU64::new(1);
+        let at: Vec<AtomicU64> = (0..4).map(|_| AtomicU64::new(0)).collect();
+        let mut releases: Vec<(u64, TaskId)> = Vec::new();
+        let rec = pool.run_with_progress(
+            &g,
+            |t, _, _| {
+                at[t as usize].store(seq.fetch_add(1, Ordering::SeqCst), Ordering::SeqCst);
+            },
+            |r| {
+                // Release c once a has run, then d twice once c has run (one per call).
+                if at[a as usize].load(Ordering::SeqCst) > 0 && !releases.iter().any(|x| x.1 == c) {
+                    releases.push((seq.fetch_add(1, Ordering::SeqCst), c));
+                    r.release(c);
+                    return true;
+                }
+                if at[c as usize].load(Ordering::SeqCst) > 0 && releases.iter().filter(|x| x.1 == d).count() < 2 {
+                    releases.push((seq.fetch_add(1, Ordering::SeqCst), d));
+                    r.release(d);
+                    return true;
+                }
+                false
+            },
+        );
+        assert_eq!(rec.records.len(), 4);
+        let when = |t: TaskId| at[t as usize].load(Ordering::SeqCst);
+        assert!((0..4).all(|t| when(t) > 0), "round {round}: every task ran");
+        assert!(when(a) < when(b), "edge a -> b");
+        let rel_c = releases.iter().find(|x| x.1 == c).unwrap().0;
+        let last_d = releases.iter().filter(|x| x.1 == d).map(|x| x.0).max().unwrap();
+        assert!(
+            rel_c < when(c) && when(c) < when(d) && last_d < when(d),
+            "round {round}"
+        );
+    }
+    // A graph with external dependencies refuses the plain run.
+    let r = panic::catch_unwind(AssertUnwindSafe(|| pool.run(&g, |_, _, _| {})));
+    assert!(r.is_err());
+}
+
+/// Two pools in two threads (two "ranks") passing a token through 200 tasks that each wait for the
+/// other rank's previous task: every task runs once, in token order, and both runs end.
+#[test]
+fn two_drivers_pass_messages_between_their_graphs() {
+    use crossbeam::channel::{unbounded, Receiver, Sender};
+    const N: u32 = 100;
+    let rank = |me: u32, tx: Sender<u32>, rx: Receiver<u32>, log: &Mutex<Vec<(u32, u32)>>| {
+        let pool = Executor::new(PoolConfig::unpinned(1, 2)).unwrap();
+        let mut g = GraphBuilder::new();
+        let ids: Vec<TaskId> = (0..N).map(|_| g.add(TaskSpec::for_owner(0))).collect();
+        for (i, &t) in ids.iter().enumerate() {
+            // Rank 0's first task starts the chain; every other waits for the token.
+            if !(me == 0 && i == 0) {
+                g.external(t, 1);
+            }
+        }
+        let g = g.build().unwrap();
+        let driver = thread::current();
+        let outbox: Mutex<Vec<u32>> = Mutex::new(Vec::new());
+        pool.run_with_progress(
+            &g,
+            |t, _, _| {
+                log.lock().unwrap().push((me, t));
+                outbox.lock().unwrap().push(t);
+                driver.unpark();
+            },
+            |r| {
+                let mut did = false;
+                for t in outbox.lock().unwrap().drain(..) {
+                    // The last token finds the other rank gone (its run ended): nothing waits for it.
+                    let _ = tx.send(t);
+                    did = true;
+                }
+                while let Ok(t) = rx.try_recv() {
+                    // The other rank's task t releases this rank's task t (rank 0) or t (rank 1).
+                    let next = if me == 0 { t + 1 } else { t };
+                    if next < N {
+                        r.release(ids[next as usize]);
+                    }
+                    did = true;
+                }
+                did
+            },
+        );
+    };
+    let log = Mutex::new(Vec::new());
+    let (t01, r01) = unbounded();
+    let (t10, r10) = unbounded();
+    thread::scope(|s| {
+        s.spawn(|| rank(0, t01, r10, &log));
+        s.spawn(|| rank(1, t10, r01, &log));
+    });
+    let log = log.into_inner().unwrap();
+    let want: Vec<(u32, u32)> = (0..N).flat_map(|t| [(0, t), (1, t)]).collect();
+    assert_eq!(log, want);
+}

@@ -54,6 +54,8 @@ struct Group {
     mailboxes: Vec<Mutex<Mailbox>>,
     rendezvous: Mutex<Rendezvous>,
     wake: Condvar,
+    /// Per rank: the thread to unpark when a message arrives ([`Transport::set_waker`]).
+    wakers: Vec<Mutex<Option<std::thread::Thread>>>,
     aborted: AtomicBool,
     abort: Mutex<Option<TransportError>>,
 }
@@ -82,6 +84,7 @@ impl Loopback {
                 result: Arc::new(Vec::new()),
             }),
             wake: Condvar::new(),
+            wakers: (0..ranks).map(|_| Mutex::new(None)).collect(),
             aborted: AtomicBool::new(false),
             abort: Mutex::new(None),
         });
@@ -210,7 +213,13 @@ impl Transport for Loopback {
         let n = self.sent.fetch_add(1, Ordering::Relaxed);
         let mut m = self.group.mailboxes[to].lock().expect("mailbox");
         match &self.group.delays {
-            None => m.arrived.entry((self.rank, tag)).or_default().push_back(bytes),
+            None => {
+                m.arrived.entry((self.rank, tag)).or_default().push_back(bytes);
+                drop(m);
+                if let Some(t) = self.group.wakers[to].lock().expect("waker").as_ref() {
+                    t.unpark();
+                }
+            }
             Some(d) => {
                 let key = (self.rank, tag);
                 let mut due = Instant::now() + self.delay(d, n);
@@ -234,6 +243,29 @@ impl Transport for Loopback {
         self.check_rank(from)?;
         let mut m = self.group.mailboxes[self.rank].lock().expect("mailbox");
         Ok(m.arrived.get_mut(&(from, tag)).and_then(|q| q.pop_front()))
+    }
+
+    fn try_recv_any(&self, class: u8) -> Result<Option<(Rank, Tag, Vec<u8>)>, TransportError> {
+        self.check()?;
+        let mut m = self.group.mailboxes[self.rank].lock().expect("mailbox");
+        let key = m
+            .arrived
+            .iter()
+            .filter(|(k, q)| k.1.class == class && !q.is_empty())
+            .map(|(k, _)| *k)
+            .min();
+        Ok(key.and_then(|k| {
+            let q = m.arrived.get_mut(&k).expect("key found above");
+            let bytes = q.pop_front()?;
+            if q.is_empty() {
+                m.arrived.remove(&k);
+            }
+            Some((k.0, k.1, bytes))
+        }))
+    }
+
+    fn set_waker(&self, driver: std::thread::Thread) {
+        *self.group.wakers[self.rank].lock().expect("waker") = Some(driver);
     }
 
     fn poll(&self) -> Result<usize, TransportError> {

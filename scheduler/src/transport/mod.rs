@@ -125,9 +125,19 @@ pub trait Transport: Send + Sync {
     /// The oldest message that has arrived from `from` under `tag`, if any; never waits.
     fn try_recv(&self, from: Rank, tag: Tag) -> Result<Option<Vec<u8>>, TransportError>;
 
+    /// The oldest message of class `class` that has arrived from any rank under any tag of that class,
+    /// with its sender and tag, if any; never waits. (Messages of one sender and tag still come in the
+    /// order they were sent; between senders or tags the order is the transport's.)
+    fn try_recv_any(&self, class: u8) -> Result<Option<(Rank, Tag, Vec<u8>)>, TransportError>;
+
     /// Completes what can complete now (delivers messages that are due) and returns how many messages
     /// arrived at this rank in this call.
     fn poll(&self) -> Result<usize, TransportError>;
+
+    /// The thread to unpark when a message arrives for this rank (the rank's driver, which parks while
+    /// it waits). Transports that cannot wake a thread ignore it; the driver then finds the message at
+    /// its next poll.
+    fn set_waker(&self, _driver: std::thread::Thread) {}
 
     /// Waits for the oldest message from `from` under `tag` (polling) and takes it.
     fn recv(&self, from: Rank, tag: Tag) -> Result<Vec<u8>, TransportError> {

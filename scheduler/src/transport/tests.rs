@@ -255,3 +255,78 @@ fn ranks_outside_the_group_are_refused() {
         "a group of one cannot wait for a message it never sent"
     );
 }
+
+/// Every rank sends PER_TAG messages of class 0 under two tags to every rank, then takes them with
+/// `try_recv_any(0)` in whatever order they come: each arrives once, whole, in send order per (sender,
+/// tag), and no class-3 message is taken.
+fn any_source(t: &dyn Transport) {
+    let r = t.ranks();
+    let tags = [TAGS[0], TAGS[1]];
+    for to in 0..r {
+        t.send(to, TAGS[2], message(t.rank(), to, TAGS[2], 0)).expect("send");
+        for tag in tags {
+            for k in 0..PER_TAG {
+                t.send(to, tag, message(t.rank(), to, tag, k)).expect("send");
+            }
+        }
+    }
+    let mut next = std::collections::HashMap::new();
+    let mut got = 0;
+    while got < r * tags.len() * PER_TAG {
+        t.poll().expect("poll");
+        let Some((from, tag, bytes)) = t.try_recv_any(0).expect("try_recv_any") else {
+            std::thread::yield_now();
+            continue;
+        };
+        assert_eq!(tag.class, 0);
+        let k = next.entry((from, tag)).or_insert(0usize);
+        assert_eq!(
+            bytes,
+            message(from, t.rank(), tag, *k),
+            "rank {} from {from} {tag:?}",
+            t.rank()
+        );
+        *k += 1;
+        got += 1;
+    }
+    assert_eq!(t.try_recv_any(0).expect("try_recv_any"), None);
+    for from in 0..r {
+        assert_eq!(
+            t.recv(from, TAGS[2]).expect("recv"),
+            message(from, t.rank(), TAGS[2], 0)
+        );
+    }
+}
+
+#[test]
+fn messages_of_a_class_come_from_any_sender_in_order_per_sender_and_tag() {
+    for ranks in [1, 2, 3, 5] {
+        run_loopback(ranks, None, |t| any_source(t));
+        let delays = Some(Delays {
+            seed: 7,
+            max: Duration::from_micros(300),
+        });
+        run_loopback(ranks, delays, |t| any_source(t));
+    }
+    any_source(&SingleRank::new());
+}
+
+/// A rank parked as its driver is woken by a message for it.
+#[test]
+fn a_message_unparks_the_receivers_waker() {
+    run_loopback(2, None, |t| {
+        if t.rank() == 1 {
+            t.set_waker(std::thread::current());
+            t.allreduce_u64(&mut [0], IntOp::Sum).expect("barrier");
+            let start = std::time::Instant::now();
+            while t.try_recv(0, TAGS[0]).expect("try_recv").is_none() {
+                std::thread::park_timeout(Duration::from_secs(5));
+                assert!(start.elapsed() < Duration::from_secs(4), "never woken");
+            }
+        } else {
+            t.allreduce_u64(&mut [0], IntOp::Sum).expect("barrier");
+            std::thread::sleep(Duration::from_millis(20));
+            t.send(1, TAGS[0], vec![1]).expect("send");
+        }
+    });
+}
