@@ -56,6 +56,16 @@ pub enum Error {
     /// A checkpoint could not be used for a restart (unreadable, not a checkpoint, another format version,
     /// truncated, corrupt, or from another scene). The message names the file and the reason.
     Checkpoint(String),
+    /// Another rank of the group failed and ended the run: its index, exit code and one-line message
+    /// (which that rank reports; the others exit with the same code).
+    Aborted {
+        /// The rank that failed.
+        rank: usize,
+        /// Its exit code.
+        code: i32,
+        /// Its message.
+        message: String,
+    },
     /// SIGINT or SIGTERM stopped the run after `step` steps; a checkpoint of that step was written
     /// (summary.json says `"status": "interrupted"`).
     Interrupted {
@@ -74,6 +84,7 @@ impl fmt::Display for Error {
             Error::Config(m) | Error::Io(m) => f.write_str(m),
             Error::Unstable(i) => i.fmt(f),
             Error::ParticlesUnstable(m) | Error::Checkpoint(m) => f.write_str(m),
+            Error::Aborted { rank, message, .. } => write!(f, "rank {rank}: {message}"),
             Error::Interrupted {
                 signal,
                 step,
@@ -103,6 +114,7 @@ impl Error {
             Error::Config(_) | Error::Io(_) => 1,
             Error::Unstable(_) | Error::ParticlesUnstable(_) => 3,
             Error::Checkpoint(_) => 4,
+            Error::Aborted { code, .. } => *code,
             Error::Interrupted { signal, .. } => 128 + signal,
         }
     }

@@ -19,9 +19,10 @@ const MAY_USE: &[(&str, &[&str])] = &[
     ("metrics", &["util", "error", "config", "physics"]),
     ("estimator", &["util", "error", "config", "physics"]),
     ("serialise", &["util", "error", "config", "physics"]),
+    ("ranks", &["util", "error", "config"]),
     (
         "pipeline",
-        &["util", "error", "config", "physics", "metrics", "serialise"],
+        &["util", "error", "config", "physics", "metrics", "serialise", "ranks"],
     ),
     (
         "balance",
@@ -33,6 +34,7 @@ const MAY_USE: &[(&str, &[&str])] = &[
         "timeloop",
         &[
             "util",
+            "ranks",
             "error",
             "config",
             "physics",
@@ -47,6 +49,7 @@ const MAY_USE: &[(&str, &[&str])] = &[
         "study",
         &[
             "util",
+            "ranks",
             "error",
             "config",
             "physics",
@@ -63,6 +66,7 @@ const MAY_USE: &[(&str, &[&str])] = &[
         "checkpoint",
         &[
             "util",
+            "ranks",
             "error",
             "config",
             "physics",
@@ -78,6 +82,7 @@ const MAY_USE: &[(&str, &[&str])] = &[
         "app",
         &[
             "util",
+            "ranks",
             "error",
             "config",
             "physics",

@@ -256,6 +256,20 @@ impl<T: Real> PdfField<T> {
         }
     }
 
+    /// A field of `layout` without storage: the stand-in of a block whose data another rank holds. It
+    /// has no values ([`PdfField::is_allocated`] is false); replace it by a real field before use.
+    pub fn unallocated(layout: Layout) -> Self {
+        PdfField {
+            layout,
+            buf: AlignedBuf::zeroed(0, 0),
+        }
+    }
+
+    /// Whether the field has storage (every field but an [`PdfField::unallocated`] one).
+    pub fn is_allocated(&self) -> bool {
+        self.buf.len > 0
+    }
+
     /// Advises the field's memory to transparent huge pages ([`AlignedBuf::advise_huge_pages`]); call
     /// before the first write.
     pub fn advise_huge_pages(&mut self) -> bool {

@@ -38,6 +38,9 @@ pub trait Real:
     fn to_f64(self) -> f64;
     /// The raw IEEE bits, zero-extended to 64 bits (for checksums).
     fn bits(self) -> u64;
+    /// The value of raw IEEE bits (the low [`Real::BYTES`] bytes of `bits`): the inverse of
+    /// [`Real::bits`].
+    fn from_bits(bits: u64) -> Self;
     /// `max` that propagates the larger of two ordered values (NaN handled by the caller).
     fn max_of(self, o: Self) -> Self;
 }
@@ -59,6 +62,10 @@ impl Real for f64 {
     #[inline(always)]
     fn bits(self) -> u64 {
         self.to_bits()
+    }
+    #[inline(always)]
+    fn from_bits(bits: u64) -> Self {
+        f64::from_bits(bits)
     }
     #[inline(always)]
     fn max_of(self, o: Self) -> Self {
@@ -87,6 +94,10 @@ impl Real for f32 {
     #[inline(always)]
     fn bits(self) -> u64 {
         self.to_bits() as u64
+    }
+    #[inline(always)]
+    fn from_bits(bits: u64) -> Self {
+        f32::from_bits(bits as u32)
     }
     #[inline(always)]
     fn max_of(self, o: Self) -> Self {

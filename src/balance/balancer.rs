@@ -5,11 +5,9 @@
 
 use super::block_graph::BlockGraph;
 use super::distribute::{Distribute, Distribution};
-use super::weights;
+use super::weights::{self, BlockState};
 use crate::config::{BalanceConfig, Weights};
 use crate::estimator::{Coefficients, Corrector};
-use crate::physics::simulation::Simulation;
-use blockflow_kernels::Real;
 
 /// State of the dynamic balancing of one run.
 pub struct Balancer {
@@ -75,34 +73,47 @@ impl Balancer {
             .then(|| Balancer::new(cfg.weights, super::strategy(cfg), processes, coefficients, domain))
     }
 
-    fn estimate<T: Real>(&self, sim: &Simulation<T>) -> Vec<f64> {
+    fn estimate(&self, s: &BlockState) -> Vec<f64> {
         weights::estimate(
-            sim,
+            s,
             self.coefficients.as_ref().expect("estimator weights have coefficients"),
         )
     }
 
-    /// Bookkeeping after a graph run of `k` steps: the corrector's prediction for the interval.
-    pub fn after_run<T: Real>(&mut self, sim: &Simulation<T>, k: usize) {
+    /// Whether the weights are computed from the blocks' state ([`BlockState`], for [`Balancer::after_run`]
+    /// and [`Balancer::rebalance`]; else any state will do, an empty one too).
+    pub fn needs_state(&self) -> bool {
+        weights::need_state(self.weights)
+    }
+
+    /// Whether [`Balancer::after_run`] reads the blocks' state.
+    pub fn needs_state_after_runs(&self) -> bool {
+        self.weights == Weights::Corrected
+    }
+
+    /// Bookkeeping after a graph run of `k` steps from the blocks' state after it: the corrector's
+    /// prediction for the interval.
+    pub fn after_run(&mut self, s: &BlockState, k: usize) {
         if self.weights == Weights::Corrected {
-            let e = self.estimate(sim);
+            let e = self.estimate(s);
             for (p, x) in self.predicted.iter_mut().zip(e) {
                 *p += k as f64 * x;
             }
         }
     }
 
-    /// Block weights for the next distribution, from the interval's measured per-block load.
-    pub fn block_weights<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64]) -> Vec<f64> {
+    /// Block weights for the next distribution, from the blocks' state and the interval's measured
+    /// per-block load.
+    pub fn block_weights(&mut self, s: &BlockState, block_load: &[f64]) -> Vec<f64> {
         match self.weights {
-            Weights::Cells => weights::cells(sim),
-            Weights::Uniform => vec![1.0; sim.blocks.len()],
-            Weights::Estimator => self.estimate(sim),
+            Weights::Cells => weights::cells(s),
+            Weights::Uniform => vec![1.0; self.graph.len()],
+            Weights::Estimator => self.estimate(s),
             Weights::Measured => crate::estimator::measured(block_load),
             Weights::Corrected => {
                 self.corrector.update(&self.predicted, block_load);
                 self.predicted.iter_mut().for_each(|p| *p = 0.0);
-                let e = self.estimate(sim);
+                let e = self.estimate(s);
                 self.corrector.weights(&e)
             }
         }
@@ -110,9 +121,9 @@ impl Balancer {
 
     /// The balancing step: block weights, then the strategy's distribution starting from the current
     /// `owners`; returns the new owner of every block (and, for METIS, the moves without relabelling).
-    pub fn rebalance<T: Real>(&mut self, sim: &Simulation<T>, block_load: &[f64], owners: &[u32]) -> Distribution {
+    pub fn rebalance(&mut self, s: &BlockState, block_load: &[f64], owners: &[u32]) -> Distribution {
         self.steps += 1;
-        self.last = self.block_weights(sim, block_load);
+        self.last = self.block_weights(s, block_load);
         self.strategy
             .distribute(&self.graph, &self.last, owners, self.processes)
     }

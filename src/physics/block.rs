@@ -88,6 +88,9 @@ pub struct Block<T: Real> {
     /// Cells covered by particles, their links and forces (absent without particles in the fluid).
     /// Rebuilt by the `map` task, read by the boundary and sweep tasks (ordered by the graph).
     particles: UnsafeCell<Option<crate::physics::particle_cells::ParticleCells>>,
+    /// For a block another rank holds: a copy of the body forces of its particle overlay's last boundary
+    /// pass ([`Block::body_forces`]), filled from that rank's messages.
+    remote_forces: UnsafeCell<Vec<crate::physics::particle_cells::BodyForce>>,
 }
 
 /// What a block takes from the scene's static geometry (walls, planes, no-fluid regions): cell flags
@@ -269,7 +272,65 @@ impl<T: Real> Block<T> {
             near_boundary_cells: near,
             obstacle_free,
             particles: UnsafeCell::new(None),
+            remote_forces: UnsafeCell::new(Vec::new()),
         }
+    }
+
+    /// Whether this process holds the block's data (PDF fields, particle overlay). Under virtual
+    /// processes every block is held; under ranks only the blocks the rank owns, the others keep their
+    /// static structure (flags, runs, links, receive lists) and nothing else.
+    pub fn is_held(&self) -> bool {
+        // SAFETY: a shared view of the field's bookkeeping; fields are swapped only when no task runs.
+        unsafe { (*self.fields[0].get()).is_allocated() }
+    }
+
+    /// Gives up the block's data: the PDF fields (memory returned) and the particle overlay. The block
+    /// keeps its static structure; [`Block::hold`] or a decoded block gives it data again.
+    ///
+    /// # Safety
+    /// No task may run on this block, and no reference to its fields or overlay may be alive.
+    pub unsafe fn release(&self) {
+        for f in &self.fields {
+            *f.get() = PdfField::unallocated(self.layout);
+        }
+        *self.particles.get() = None;
+        (*self.remote_forces.get()).clear();
+    }
+
+    /// Gives the block fresh fields at rest (pages mapped lazily: the thread that writes them first
+    /// places them) if it has none.
+    ///
+    /// # Safety
+    /// As [`Block::release`].
+    pub unsafe fn hold(&self) {
+        if self.is_held() {
+            return;
+        }
+        for (k, f) in self.fields.iter().enumerate() {
+            *f.get() = PdfField::new(self.layout, skew(k));
+        }
+        (*self.remote_forces.get()).clear();
+    }
+
+    /// The body forces of the block's last boundary pass (eqs. 8, 9 restricted to its links, sorted by
+    /// body id): from its particle overlay when this process holds the block, else the copy another
+    /// rank sent ([`Block::set_remote_forces`]); empty without an overlay.
+    pub fn body_forces(&self) -> &[crate::physics::particle_cells::BodyForce] {
+        match self.particle_cells() {
+            Some(pc) => &pc.forces,
+            // SAFETY: a shared view; the copy is replaced only between the tasks that read it (by the
+            // graph's message edges) or between graph runs.
+            None if !self.is_held() => unsafe { &*self.remote_forces.get() },
+            None => &[],
+        }
+    }
+
+    /// Replaces the copy of the body forces of a block another rank holds.
+    ///
+    /// # Safety
+    /// No task may read [`Block::body_forces`] of this block concurrently.
+    pub unsafe fn set_remote_forces(&self, forces: Vec<crate::physics::particle_cells::BodyForce>) {
+        *self.remote_forces.get() = forces;
     }
 
     /// The particle overlay, if particles are mapped into this block's fluid.

@@ -66,6 +66,66 @@ pub fn unpack<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usi
     assert_eq!(k, buf.len(), "message size does not match the ghost region");
 }
 
+/// Appends the PDFs of [`pack`] as little-endian bytes (the exact bits) to `out`: the ghost message
+/// that crosses ranks.
+pub fn pack_bytes<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], out: &mut Vec<u8>) {
+    let l = &sender.layout;
+    let f = sender.field(p).raw();
+    let sl = sender.slots(p);
+    let [rx, ry, rz] = source_ranges(l, off);
+    out.reserve(region_values(l, off, dirs) * T::BYTES);
+    for &q in dirs {
+        for z in rz.clone() {
+            for y in ry.clone() {
+                let i = sl.at(q, l.idx(*rx.start(), y, z));
+                for x in 0..=(rx.end() - rx.start()) {
+                    // SAFETY: populations of the sender's interior cells; no task writes them
+                    // concurrently (graph).
+                    let v = unsafe { *f.add(i + x) };
+                    out.extend_from_slice(&v.bits().to_le_bytes()[..T::BYTES]);
+                }
+            }
+        }
+    }
+}
+
+/// Unpacks the bytes of [`pack_bytes`] into the ghost region at offset `off` of field `p` of `receiver`.
+/// Panics if their length is not the region's.
+pub fn unpack_bytes<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs: &[usize], bytes: &[u8]) {
+    let l = receiver.layout;
+    assert_eq!(
+        bytes.len(),
+        region_values(&l, off, dirs) * T::BYTES,
+        "message size does not match the ghost region"
+    );
+    let f = receiver.field(p).raw();
+    let sl = receiver.slots(p);
+    let [rx, ry, rz] = ghost_ranges(&l, off);
+    let mut values = bytes.chunks_exact(T::BYTES).map(|c| {
+        let mut b = [0u8; 8];
+        b[..T::BYTES].copy_from_slice(c);
+        T::from_bits(u64::from_le_bytes(b))
+    });
+    for &q in dirs {
+        for z in rz.clone() {
+            for y in ry.clone() {
+                let i = sl.at(q, l.idx(*rx.start(), y, z));
+                for x in 0..=(rx.end() - rx.start()) {
+                    let v = values.next().expect("length checked above");
+                    // SAFETY: populations of the receiver's ghost cells, written only by this task (graph).
+                    unsafe { *f.add(i + x) = v };
+                }
+            }
+        }
+    }
+}
+
+/// PDF values of the ghost region at offset `off` with directions `dirs`.
+pub fn region_values(l: &blockflow_kernels::Layout, off: [i32; 3], dirs: &[usize]) -> usize {
+    let cells: usize = (0..3).map(|a| if off[a] == 0 { l.size[a] } else { 1 }).product();
+    cells * dirs.len()
+}
+
 /// Direct copy inside a process by the region's plan ([`GhostRecv::runs`]): the sender's interior cells
 /// straight into the receiver's ghost cells that feed its fluid (field `p` of both; the two may be the
 /// same block on a periodic axis: the regions are disjoint).

@@ -14,8 +14,9 @@ use blockflow_kernels::sweep::SweepStats;
 use blockflow_kernels::trt::post_collision_equilibrium;
 use blockflow_kernels::{Pattern, Real, TrtParams};
 
-/// Global diagnostics of the fluid (sums in block order, so they do not depend on who computed what).
-#[derive(Clone, Copy, Debug, Default)]
+/// Global diagnostics of the fluid: per-block partial sums added in block-id order, so they do not
+/// depend on who computed which block (virtual process or rank).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Diagnostics {
     /// Σ ρ over fluid cells.
     pub mass: f64,
@@ -25,6 +26,25 @@ pub struct Diagnostics {
     pub kinetic_energy: f64,
     /// Largest |u|.
     pub max_velocity: f64,
+    /// Fluid cells summed over.
+    pub cells: usize,
+}
+
+impl Diagnostics {
+    /// The diagnostics of the whole fluid from its blocks' ([`Simulation::block_diagnostics`]), given in
+    /// ascending block-id order: Σ δρ, Σ ½|u|² and the cells added block by block, the largest |u|, and
+    /// ρ summed as cells + Σ δρ.
+    pub fn combine(blocks: impl IntoIterator<Item = Diagnostics>) -> Diagnostics {
+        let mut d = Diagnostics::default();
+        for b in blocks {
+            d.mass_deviation += b.mass_deviation;
+            d.kinetic_energy += b.kinetic_energy;
+            d.max_velocity = d.max_velocity.max(b.max_velocity);
+            d.cells += b.cells;
+        }
+        d.mass = d.cells as f64 + d.mass_deviation;
+        d
+    }
 }
 
 /// The fluid–particle coupling switches of a run (`[particles]` keys).
@@ -101,10 +121,11 @@ impl<T: Real> Simulation<T> {
         }
     }
 
-    /// Initialises every fluid cell at (forced) equilibrium with `state(global cell) = (δρ, u)`.
+    /// Initialises every fluid cell of the blocks this process holds at (forced) equilibrium with
+    /// `state(global cell) = (δρ, u)`.
     pub fn init(&mut self, state: impl Fn([usize; 3]) -> (f64, [f64; 3])) {
         let p = self.params;
-        for b in &mut self.blocks {
+        for b in self.blocks.iter_mut().filter(|b| b.is_held()) {
             b.init(|g| {
                 let (r, u) = state(g);
                 post_collision_equilibrium(r, u, &p)
@@ -125,61 +146,92 @@ impl<T: Real> Simulation<T> {
     /// Advances the step counter and checks one step's sweep statistics (one per block, in block order).
     pub fn finish_step(&mut self, stats: &[SweepStats]) -> Result<(), Instability> {
         self.step += 1;
-        let limit2 = self.velocity_limit * self.velocity_limit;
-        let bad = stats
-            .iter()
-            .position(|st| st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2);
-        if let Some(id) = bad {
-            let b = &self.blocks[id];
-            let (cell, r, u) = fluid::find_bad_cell(b, self.parity(), self.velocity_limit, self.params.force)
-                .unwrap_or((b.origin, f64::NAN, [f64::NAN; 3]));
-            return Err(Instability {
-                step: self.step,
-                block: id,
-                block_coords: b.coords,
-                cell,
-                density: 1.0 + r,
-                velocity: u,
-                limit: self.velocity_limit,
-            });
+        match stats.iter().position(|st| self.is_unstable(st)) {
+            Some(id) => Err(self.instability(id, self.step)),
+            None => Ok(()),
         }
-        Ok(())
     }
 
-    /// Calls `visit(global cell, δρ, u)` for every fluid cell, blocks in id order.
+    /// Whether a sweep's statistics show an unstable block (a non-finite value or |u| above the limit).
+    pub fn is_unstable(&self, st: &SweepStats) -> bool {
+        let limit2 = self.velocity_limit * self.velocity_limit;
+        st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2
+    }
+
+    /// The report of an instability the detector found in block `id` (held by this process) at `step`:
+    /// the first bad cell of the current state with its density and velocity.
+    pub fn instability(&self, id: usize, step: u64) -> Instability {
+        let b = &self.blocks[id];
+        let (cell, r, u) = fluid::find_bad_cell(b, self.parity(), self.velocity_limit, self.params.force).unwrap_or((
+            b.origin,
+            f64::NAN,
+            [f64::NAN; 3],
+        ));
+        Instability {
+            step,
+            block: id,
+            block_coords: b.coords,
+            cell,
+            density: 1.0 + r,
+            velocity: u,
+            limit: self.velocity_limit,
+        }
+    }
+
+    /// Calls `visit(global cell, δρ, u)` for every fluid cell of the blocks this process holds, blocks in
+    /// id order.
     pub fn for_each_fluid(&self, mut visit: impl FnMut([usize; 3], f64, [f64; 3])) {
+        for b in self.blocks.iter().filter(|b| b.is_held()) {
+            self.for_each_fluid_of(b.id, &mut visit);
+        }
+    }
+
+    /// Calls `visit(global cell, δρ, u)` for every fluid cell of block `b` (held by this process), in
+    /// x-fastest order.
+    pub fn for_each_fluid_of(&self, b: usize, mut visit: impl FnMut([usize; 3], f64, [f64; 3])) {
         let force = self.params.force;
         let p = self.parity();
-        for b in &self.blocks {
-            b.for_each_fluid(|g, i| {
-                let (r, u) = fluid::cell_moments(b, p, i, force);
-                visit(g, r, u);
-            });
-        }
+        let blk = &self.blocks[b];
+        blk.for_each_fluid(|g, i| {
+            let (r, u) = fluid::cell_moments(blk, p, i, force);
+            visit(g, r, u);
+        });
     }
 
-    /// Mass, kinetic energy and the largest velocity.
-    pub fn diagnostics(&self) -> Diagnostics {
+    /// The partial sums of block `b` (held by this process) for [`Diagnostics::combine`]: Σ δρ, Σ ½|u|²,
+    /// the largest |u| and the cells, over its fluid cells in x-fastest order.
+    pub fn block_diagnostics(&self, b: usize) -> Diagnostics {
         let mut d = Diagnostics::default();
-        let mut cells = 0usize;
-        self.for_each_fluid(|_, r, u| {
+        self.for_each_fluid_of(b, |_, r, u| {
             let u2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2];
             d.mass_deviation += r;
             d.kinetic_energy += 0.5 * u2;
             d.max_velocity = d.max_velocity.max(u2.sqrt());
-            cells += 1;
+            d.cells += 1;
         });
-        d.mass = cells as f64 + d.mass_deviation;
+        d.mass = d.cells as f64 + d.mass_deviation;
         d
     }
 
-    /// A hash of the exact bits of every fluid cell's 19 PDFs, keyed by global cell index and combined by
-    /// wrapping addition: identical for any block decomposition, process count or traversal order.
+    /// Mass, kinetic energy and the largest velocity of the fluid of the blocks this process holds (all
+    /// of them but under ranks): per-block partial sums combined in block-id order.
+    pub fn diagnostics(&self) -> Diagnostics {
+        Diagnostics::combine(
+            self.blocks
+                .iter()
+                .filter(|b| b.is_held())
+                .map(|b| self.block_diagnostics(b.id)),
+        )
+    }
+
+    /// A hash of the exact bits of every fluid cell's 19 PDFs of the blocks this process holds (all but
+    /// under ranks), keyed by global cell index and combined by wrapping addition: identical for any block
+    /// decomposition, process count or traversal order, and the sum of the ranks' hashes under ranks.
     pub fn checksum(&self) -> u64 {
         let n = self.domain.cells();
         let p = self.parity();
         let mut sum = 0u64;
-        for b in &self.blocks {
+        for b in self.blocks.iter().filter(|b| b.is_held()) {
             let (f, sl) = (b.field(p), b.slots(p));
             b.for_each_fluid(|g, i| {
                 let mut h = crate::util::hash::mix(0x5bd1_e995 ^ (g[0] + n[0] * (g[1] + n[1] * g[2])) as u64);

@@ -95,6 +95,7 @@ impl<T: Real> Pipeline<T> {
         k: usize,
     ) {
         let nb = sim.blocks.len();
+        let held: Vec<bool> = (0..nb).map(|b| self.local_process(b).is_some()).collect();
         let last = &mut self.last;
         last.steps = k;
         last.wall_seconds = wall;
@@ -134,8 +135,22 @@ impl<T: Real> Pipeline<T> {
                 *x += n;
             }
         }
-        let (bytes, remote) = self.plan.remote_per_step(sim);
-        let local: u64 = sim.blocks.iter().map(|b| b.recv.len() as u64).sum::<u64>() - remote;
+        // Under ranks each rank counts what its own blocks send and receive.
+        let mine = |b: usize| held[b];
+        let (bytes, remote) = self.plan.remote_per_step(sim, mine);
+        let regions: u64 = sim
+            .blocks
+            .iter()
+            .filter(|b| mine(b.id))
+            .map(|b| b.recv.len() as u64)
+            .sum();
+        let received: u64 = sim
+            .blocks
+            .iter()
+            .filter(|b| mine(b.id))
+            .map(|b| self.plan.slot_of[b.id].iter().filter(|s| s.is_some()).count() as u64)
+            .sum();
+        let local = regions - received;
         t.message_bytes += bytes * k as u64;
         t.remote_messages += remote * k as u64;
         t.local_copies += local * k as u64;

@@ -3,6 +3,7 @@
 
 use super::kinds::{Payload, TaskKind};
 use super::messages::MessagePlan;
+use super::ranked::RankGhosts;
 use crate::physics::simulation::Simulation;
 use crate::physics::{coupling, fluid};
 use blockflow_kernels::sweep::SweepStats;
@@ -20,6 +21,9 @@ pub(super) struct Dispatch<'a, T: Real> {
     pub(super) stats: &'a [Mutex<SweepStats>],
     /// `run.no_skip`: the general paths instead of the skipping ones.
     pub(super) no_skip: bool,
+    /// Under ranks: the ghost regions between ranks (packed into messages by `ranked::post`, unpacked
+    /// from their buffers by `comm`).
+    pub(super) ghosts: Option<&'a RankGhosts>,
 }
 
 impl<T: Real> Dispatch<'_, T> {
@@ -79,6 +83,8 @@ impl<T: Real> Dispatch<'_, T> {
                 let parts = sim.particles.as_ref().expect("forces tasks only exist with particles");
                 coupling::tasks::forces_task(parts, blocks, b.id, step, sim.coupling.force_averaging)
             }
+            // Under ranks the message is packed when the task posts it.
+            TaskKind::Send if self.ghosts.is_some() => {}
             TaskKind::Send => {
                 for o in &self.plan.outgoing[b.id] {
                     let g = &blocks[o.receiver].recv[o.recv];
@@ -89,6 +95,7 @@ impl<T: Real> Dispatch<'_, T> {
             TaskKind::Comm => {
                 for (r, g) in b.recv.iter().enumerate() {
                     match self.plan.slot_of[b.id][r] {
+                        Some(_) if self.ghosts.is_some() => self.ghosts.expect("checked").unpack(b, r, payload.step, p),
                         Some(s) => {
                             let buf = self.plan.slots[s].lock().expect("slot");
                             fluid::unpack(b, p, g.offset, &g.directions, &buf)

@@ -62,11 +62,15 @@ impl<T: Real> MessagePlan<T> {
         }
     }
 
-    /// Bytes and count of the cross-process messages of one step.
-    pub(super) fn remote_per_step(&self, sim: &Simulation<T>) -> (u64, u64) {
+    /// Bytes and count of the cross-process messages of one step that the blocks for which `mine` holds
+    /// send.
+    pub(super) fn remote_per_step(&self, sim: &Simulation<T>, mine: impl Fn(usize) -> bool) -> (u64, u64) {
         let mut bytes = 0u64;
         let mut remote = 0u64;
-        for o in self.outgoing.iter().flatten() {
+        for o in (0..self.outgoing.len())
+            .filter(|&b| mine(b))
+            .flat_map(|b| &self.outgoing[b])
+        {
             let g = &sim.blocks[o.receiver].recv[o.recv];
             bytes += (region_cells(&sim.blocks[o.receiver], g.offset) * g.directions.len() * T::BYTES) as u64;
             remote += 1;

@@ -51,10 +51,13 @@
 //! stealing and assignment.
 
 //!
+//! Under ranks that share no memory ([`World`] of several ranks) each rank runs its own blocks' tasks
+//! and the graph's edges between ranks become messages (`ranked`).
+//!
 //! Files: [`kinds`] (task kinds and payloads), `graph` (building the graph), `skip` (the skip rules'
 //! bookkeeping), `dispatch` (what each task does), `messages` (the cross-process message plan),
-//! `migrate` (moving blocks between processes), `accounting` (per-task times into totals and the
-//! record of the last run). The pipeline holds only working memory: the state is the [`Simulation`]
+//! `ranked` (the graph and its messages on ranks), `migrate` (moving blocks between processes and
+//! ranks), `accounting` (per-task times into totals and the record of the last run). The pipeline holds only working memory: the state is the [`Simulation`]
 //! passed in, the decisions (when to balance, where blocks go) are the time loop's.
 
 mod accounting;
@@ -63,6 +66,7 @@ mod graph;
 pub mod kinds;
 mod messages;
 mod migrate;
+mod ranked;
 mod skip;
 
 pub use accounting::{RunRecord, Totals};
@@ -73,6 +77,7 @@ use crate::config::Config;
 use crate::error::{Error, Instability};
 use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
+use crate::ranks::World;
 use accounting::LastRun;
 use blockflow_kernels::sweep::SweepStats;
 use blockflow_kernels::{Pattern, Real};
@@ -83,6 +88,7 @@ use dispatch::Dispatch;
 use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks};
 use kinds::Payload;
 use messages::MessagePlan;
+use ranked::{Driver, Outbox, RankGhosts, RankGraph};
 use skip::{count_tasks, GraphCounts};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -120,13 +126,50 @@ struct Trace {
     bases: Arc<Mutex<Vec<u64>>>,
 }
 
+/// A compiled graph: the tasks this process runs and, under ranks, the messages along the edges to
+/// and from the other ranks' tasks.
+struct Compiled {
+    graph: TaskGraph,
+    messages: Option<RankGraph>,
+}
+
+/// What a rank's pipeline keeps besides the shared-memory one: the ghost regions between ranks, the
+/// block flags the graph's shape comes from (gathered at the start of every run) and the tasks' outbox.
+struct RankState {
+    ghosts: RankGhosts,
+    flags: Option<ShapeFlags>,
+    outbox: Outbox,
+}
+
+/// Per block, what the step graph's shape depends on besides its static structure and the active
+/// blocks: whether the block has a particle overlay, and whether the overlay has links.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct ShapeFlags {
+    overlay: Vec<bool>,
+    links: Vec<bool>,
+}
+
+impl ShapeFlags {
+    /// The flags of the blocks this process holds (false for the others).
+    fn of<T: Real>(sim: &Simulation<T>) -> Self {
+        ShapeFlags {
+            overlay: sim.blocks.iter().map(|b| b.particle_cells().is_some()).collect(),
+            links: sim
+                .blocks
+                .iter()
+                .map(|b| b.particle_cells().is_some_and(|p| !p.link_cells.is_empty()))
+                .collect(),
+        }
+    }
+}
+
 /// Runs a [`Simulation`] through the task graph: the executor, the owners, the compiled graphs, the
 /// message plan and the task accounting (working memory only).
 pub struct Pipeline<T: Real> {
     exec: Executor,
     owners: Vec<u32>,
     settings: PipelineConfig,
-    graphs: HashMap<usize, TaskGraph>,
+    graphs: HashMap<usize, Compiled>,
     counts: HashMap<usize, GraphCounts>,
     plan: MessagePlan<T>,
     sizes: MessageSizes,
@@ -134,20 +177,39 @@ pub struct Pipeline<T: Real> {
     totals: Totals,
     last: LastRun,
     trace: Option<Trace>,
+    world: Arc<World>,
+    ranks: Option<RankState>,
 }
 
 impl<T: Real> Pipeline<T> {
-    /// A pipeline for `sim`'s blocks with the given owners (block id → process of `exec`).
-    pub fn new(sim: &Simulation<T>, exec: Executor, owners: Vec<u32>, settings: PipelineConfig) -> Self {
+    /// A pipeline for `sim`'s blocks with the given owners: block id → process of `exec` in a world of one
+    /// rank; block id → rank in a world of several, where `exec` runs this rank's blocks in its one
+    /// process and `sim` holds only those blocks.
+    pub fn new(
+        sim: &Simulation<T>,
+        exec: Executor,
+        owners: Vec<u32>,
+        settings: PipelineConfig,
+        world: Arc<World>,
+    ) -> Self {
         assert_eq!(owners.len(), sim.blocks.len());
+        let settings = PipelineConfig {
+            steps_per_graph: settings.steps_per_graph.max(1),
+            ..settings
+        };
         let plan = MessagePlan::new(sim, &owners);
+        let ranks = (!world.is_single()).then(|| {
+            assert_eq!(exec.processes(), 1, "a rank runs its blocks in one process");
+            RankState {
+                ghosts: RankGhosts::new(sim, &owners, world.rank() as u32, settings.steps_per_graph),
+                flags: None,
+                outbox: Mutex::new(Vec::new()),
+            }
+        });
         Pipeline {
             exec,
             owners,
-            settings: PipelineConfig {
-                steps_per_graph: settings.steps_per_graph.max(1),
-                ..settings
-            },
+            settings,
             graphs: HashMap::new(),
             counts: HashMap::new(),
             plan,
@@ -156,6 +218,30 @@ impl<T: Real> Pipeline<T> {
             totals: Totals::default(),
             last: LastRun::default(),
             trace: None,
+            world,
+            ranks,
+        }
+    }
+
+    /// The ranks the run is spread over.
+    pub fn world(&self) -> &Arc<World> {
+        &self.world
+    }
+
+    /// Processes the blocks are distributed over: the executor's virtual processes, or the ranks.
+    pub fn processes(&self) -> usize {
+        if self.ranks.is_some() {
+            self.world.ranks()
+        } else {
+            self.exec.processes()
+        }
+    }
+
+    /// The process of this executor that runs block `b`'s tasks (`None`: another rank's block).
+    fn local_process(&self, b: usize) -> Option<u32> {
+        match self.ranks {
+            None => Some(self.owners[b]),
+            Some(_) => (self.owners[b] == self.world.rank() as u32).then_some(0),
         }
     }
 
@@ -213,17 +299,16 @@ impl<T: Real> Pipeline<T> {
         }
     }
 
-    /// Number of tasks of the one-step graph.
+    /// Number of tasks of the one-step graph (this rank's under ranks).
     pub fn tasks_per_step(&mut self, sim: &Simulation<T>) -> usize {
-        self.graph(sim, 1).len()
+        self.graph(sim, 1).graph.len()
     }
 
     /// Writes the initial state's pages from a thread of each block's owner (first touch: on a NUMA
     /// machine the memory then lives next to the cores that use it). Call before the first step.
     pub fn first_touch(&self, sim: &Simulation<T>) {
-        let owners = &self.owners;
         self.exec.on_each_process(|p| {
-            for b in sim.blocks.iter().filter(|b| owners[b.id] == p) {
+            for b in sim.blocks.iter().filter(|b| self.local_process(b.id) == Some(p)) {
                 match b.pattern {
                     Pattern::Pull => {
                         // SAFETY: each block is touched by exactly one process's thread, nothing else runs.
@@ -245,15 +330,21 @@ impl<T: Real> Pipeline<T> {
         });
     }
 
-    /// The compiled graph of `k` steps for the current owners and active blocks (compiled on first use).
-    fn graph(&mut self, sim: &Simulation<T>, k: usize) -> &TaskGraph {
+    /// The compiled graph of `k` steps for the current owners and active blocks (compiled on first use):
+    /// the whole step graph, or under ranks this rank's share of it.
+    fn graph(&mut self, sim: &Simulation<T>, k: usize) -> &Compiled {
         let owners = &self.owners;
         let outgoing = &self.plan.outgoing;
         let no_skip = self.settings.no_skip;
         let counts = &mut self.counts;
+        let flags = match &self.ranks {
+            Some(r) => r.flags.clone().expect("the flags are gathered before a graph run"),
+            None => ShapeFlags::of(sim),
+        };
+        let me = self.ranks.as_ref().map(|_| self.world.rank() as u32);
         self.graphs.entry(k).or_insert_with(|| {
             let mut g = GraphBuilder::new();
-            let coupled = sim.particles.is_some() && sim.blocks.iter().any(|b| b.particle_cells().is_some());
+            let coupled = sim.particles.is_some() && flags.overlay.iter().any(|&o| o);
             let moving = sim.particles.as_ref().is_some_and(|p| p.has_moving());
             // Blocks whose fluid touches particles always get a boundary task.
             let force_boundary: Vec<bool> = sim
@@ -261,9 +352,8 @@ impl<T: Real> Pipeline<T> {
                 .iter()
                 .map(|b| {
                     b.fluid_cells > 0
-                        && b.particle_cells().is_some()
-                        && (moving && sim.particles.as_ref().is_some_and(|p| p.active[b.id])
-                            || b.particle_cells().is_some_and(|pc| !pc.link_cells.is_empty()))
+                        && flags.overlay[b.id]
+                        && (moving && sim.particles.as_ref().is_some_and(|p| p.active[b.id]) || flags.links[b.id])
                 })
                 .collect();
             let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
@@ -273,9 +363,22 @@ impl<T: Real> Pipeline<T> {
             if no_skip {
                 add_static_map_tasks(&mut g, &sim.blocks, owners, k, &fluid);
             }
-            let graph = g.build().expect("the step graph is acyclic");
-            counts.insert(k, count_tasks(sim, &graph, &force_boundary, no_skip));
-            graph
+            let global = g.build().expect("the step graph is acyclic");
+            let compiled = match me {
+                None => Compiled {
+                    graph: global,
+                    messages: None,
+                },
+                Some(me) => {
+                    let (graph, messages) = RankGraph::project(&global, me);
+                    Compiled {
+                        graph,
+                        messages: Some(messages),
+                    }
+                }
+            };
+            counts.insert(k, count_tasks(sim, &compiled.graph, &force_boundary, no_skip));
+            compiled
         })
     }
 
@@ -283,9 +386,13 @@ impl<T: Real> Pipeline<T> {
     /// blocks with rigid-body tasks follow the bodies (the graphs are rebuilt when they move), every task
     /// runs on its owner's threads, its times go into the totals and [`Pipeline::last_run`]. On
     /// instability the simulation stops at the end of the run; the report names the first step (and
-    /// lowest block) whose sweep saw it, and the cell as found in the state after the run.
+    /// lowest block) whose sweep saw it, and the cell as found in the state after the run. Under ranks
+    /// every rank calls this at once and they all return the same result.
     pub fn run(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Error> {
         assert!(k >= 1 && k <= self.settings.steps_per_graph, "graph run of {k} steps");
+        if self.ranks.is_some() {
+            return self.run_ranked(sim, k);
+        }
         if let Some(parts) = sim.particles.as_mut() {
             let bodies = parts.bodies(sim.step);
             if parts.update_active(k as u64, &bodies) {
@@ -293,7 +400,12 @@ impl<T: Real> Pipeline<T> {
                 self.counts.clear();
             }
         }
-        self.run_graph(sim, k).map_err(Error::Unstable)?;
+        let base = sim.step;
+        if let Some((kk, b)) = self.run_graph(sim, k)? {
+            sim.step = base + k as u64;
+            return Err(Error::Unstable(sim.instability(b, base + kk as u64 + 1)));
+        }
+        sim.step = base + k as u64;
         if let Some(parts) = sim.particles.as_mut() {
             parts.collect_stats((k * parts.subcycles) as u64);
             if let Some(e) = parts.take_error() {
@@ -303,9 +415,101 @@ impl<T: Real> Pipeline<T> {
         Ok(())
     }
 
+    /// [`Pipeline::run`] on ranks: the active blocks and the graph's shape flags agreed on, the copies of
+    /// the neighbours' particle state refreshed, this rank's graph run with its messages; then the first
+    /// instability or particle failure over all ranks (reported by the rank that found it) and the
+    /// particle statistics summed over them.
+    fn run_ranked(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Error> {
+        let world = self.world.clone();
+        let nb = sim.blocks.len();
+        let words = nb.div_ceil(64);
+        let mut bits = vec![0u64; 3 * words];
+        let set = |bits: &mut [u64], at: usize, b: usize| bits[at * words + b / 64] |= 1 << (b % 64);
+        let mine = ShapeFlags::of(sim);
+        for b in 0..nb {
+            if mine.overlay[b] {
+                set(&mut bits, 1, b);
+            }
+            if mine.links[b] {
+                set(&mut bits, 2, b);
+            }
+        }
+        if let Some(parts) = sim.particles.as_ref() {
+            for (b, &a) in parts.reach(k as u64, &parts.bodies(sim.step)).iter().enumerate() {
+                if a {
+                    set(&mut bits, 0, b);
+                }
+            }
+        }
+        world.or(&mut bits)?;
+        let get = |at: usize, b: usize| bits[at * words + b / 64] >> (b % 64) & 1 != 0;
+        let flags = ShapeFlags {
+            overlay: (0..nb).map(|b| get(1, b)).collect(),
+            links: (0..nb).map(|b| get(2, b)).collect(),
+        };
+        let state = self.ranks.as_mut().expect("ranked");
+        let mut changed = state.flags.as_ref() != Some(&flags);
+        state.flags = Some(flags);
+        if let Some(parts) = sim.particles.as_mut() {
+            changed |= parts.set_active((0..nb).map(|b| get(0, b)).collect());
+        }
+        if changed {
+            self.graphs.clear();
+            self.counts.clear();
+        }
+        ranked::halo(sim, &self.owners, &world)?;
+        let base = sim.step;
+        let bad = self.run_graph(sim, k)?;
+        // The first failure over all ranks by (step, block) and (phase, block), the particle statistics.
+        let key = |x: Option<(u64, usize)>| x.map_or(u64::MAX, |(s, b)| s * nb as u64 + b as u64);
+        let (mut perr, mut stats) = (None, (0u64, 0.0f64));
+        if let Some(parts) = sim.particles.as_mut() {
+            perr = parts.take_error_keyed();
+            stats = parts.take_stats();
+        }
+        let mine = [
+            key(bad.map(|(kk, b)| (kk as u64, b))),
+            key(perr.as_ref().map(|e| (e.0, e.1))),
+            stats.0,
+            stats.1.to_bits(),
+        ];
+        let all: Vec<[u64; 4]> = world
+            .allgather(&mine.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>())?
+            .iter()
+            .map(|r| std::array::from_fn(|i| u64::from_le_bytes(r[8 * i..8 * i + 8].try_into().expect("8 bytes"))))
+            .collect();
+        let first_bad = all.iter().map(|r| r[0]).min().unwrap_or(u64::MAX);
+        let first_err = all.iter().map(|r| r[1]).min().unwrap_or(u64::MAX);
+        sim.step = base + k as u64;
+        if first_bad != u64::MAX {
+            let (kk, b) = (first_bad / nb as u64, (first_bad % nb as u64) as usize);
+            let report = (self.owners[b] == world.rank() as u32).then(|| sim.instability(b, base + kk + 1));
+            let text = self.from_owner(b, report.map(|i| encode_instability(&i)))?;
+            return Err(Error::Unstable(decode_instability(&text)));
+        }
+        if let Some(parts) = sim.particles.as_mut() {
+            let contacts = all.iter().fold(0u64, |a, r| a.wrapping_add(r[2]));
+            let pen = all.iter().map(|r| f64::from_bits(r[3])).fold(0.0, f64::max);
+            parts.add_stats((k * parts.subcycles) as u64, contacts, pen);
+        }
+        if first_err != u64::MAX {
+            let b = (first_err % nb as u64) as usize;
+            let text = self.from_owner(b, perr.map(|e| e.2.into_bytes()))?;
+            return Err(Error::ParticlesUnstable(String::from_utf8_lossy(&text).into_owned()));
+        }
+        Ok(())
+    }
+
+    /// The bytes the owner of block `b` has (`mine` there, `None` elsewhere), on every rank.
+    fn from_owner(&self, b: usize, mine: Option<Vec<u8>>) -> Result<Vec<u8>, Error> {
+        let mut bytes = mine.unwrap_or_default();
+        self.world.broadcast(self.owners[b] as usize, &mut bytes)?;
+        Ok(bytes)
+    }
+
     /// The record of the last graph run (`None` before the first).
     pub fn last_run(&self) -> Option<RunRecord<'_>> {
-        let graph = self.graphs.get(&self.last.steps)?;
+        let graph = &self.graphs.get(&self.last.steps)?.graph;
         Some(RunRecord {
             graph,
             durations_ns: &self.last.durations_ns,
@@ -318,55 +522,116 @@ impl<T: Real> Pipeline<T> {
         })
     }
 
-    fn run_graph(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Instability> {
+    /// One graph run of `k` steps (the simulation's step is left at the run's first): returns the first
+    /// (step in the run, block) whose sweep found the fluid unstable, among the blocks this process
+    /// holds; an error only when the ranks could not finish the run together.
+    fn run_graph(&mut self, sim: &Simulation<T>, k: usize) -> Result<Option<(usize, usize)>, Error> {
         let nb = sim.blocks.len();
         if self.stats.len() < k * nb {
             self.stats.resize_with(k * nb, || Mutex::new(SweepStats::default()));
         }
         self.graph(sim, k);
-        let graph = self.graphs.remove(&k).expect("graph built above");
+        let compiled = self.graphs.remove(&k).expect("graph built above");
         let base = sim.step;
         let t0 = Instant::now();
-        let run = {
-            let dispatch = Dispatch {
-                sim: &*sim,
-                plan: &self.plan,
-                stats: &self.stats,
-                no_skip: self.settings.no_skip,
-            };
-            // SAFETY: the graph carries the edges of the module docs (and those of the particle and
-            // coupling tasks), so no two conflicting accesses run concurrently.
-            self.exec.run(&graph, |_, spec, _| unsafe { dispatch.run(spec) })
+        let dispatch = Dispatch {
+            sim,
+            plan: &self.plan,
+            stats: &self.stats,
+            no_skip: self.settings.no_skip,
+            ghosts: self.ranks.as_ref().map(|r| &r.ghosts),
         };
+        let (run, failure) = match (&self.ranks, &compiled.messages) {
+            (Some(state), Some(messages)) => {
+                let driver_thread = std::thread::current();
+                self.world.transport().set_waker(driver_thread.clone());
+                let mut driver = Driver {
+                    sim,
+                    world: &self.world,
+                    ghosts: &state.ghosts,
+                    graph: messages,
+                    outbox: &state.outbox,
+                    base,
+                    error: None,
+                };
+                let run = self.exec.run_with_progress(
+                    &compiled.graph,
+                    |t, spec, _| {
+                        // SAFETY: the graph carries the edges of the module docs (on this rank) and the
+                        // messages stand for the edges between ranks (`ranked`).
+                        unsafe {
+                            dispatch.run(spec);
+                            let dests = &messages.post[t as usize];
+                            if !dests.is_empty() {
+                                ranked::post(sim, &state.ghosts, dests, spec, base, &state.outbox);
+                                driver_thread.unpark();
+                            }
+                        }
+                    },
+                    |rel| driver.progress(rel),
+                );
+                (run, driver.error)
+            }
+            _ => {
+                // SAFETY: the graph carries the edges of the module docs (and those of the particle and
+                // coupling tasks), so no two conflicting accesses run concurrently.
+                let run = self
+                    .exec
+                    .run(&compiled.graph, |_, spec, _| unsafe { dispatch.run(spec) });
+                (run, None)
+            }
+        };
+        if let Some(e) = failure {
+            self.graphs.insert(k, compiled);
+            return Err(e);
+        }
         let wall = t0.elapsed().as_secs_f64();
-        self.account(&graph, &run.records, wall, sim, k);
+        self.account(&compiled.graph, &run.records, wall, sim, k);
         if let Some(tr) = self.trace.as_mut() {
             tr.bases.lock().expect("trace bases").push(base);
-            tr.writer.add_run(&graph, &run.records, tr.offset_ns);
+            tr.writer.add_run(&compiled.graph, &run.records, tr.offset_ns);
             tr.offset_ns += run.wall_ns;
         }
-        self.graphs.insert(k, graph);
-        // Instability check in step order, then block order.
+        self.graphs.insert(k, compiled);
+        // The first instability in step order, then block order.
         for kk in 0..k {
-            let row: Vec<SweepStats> = (0..nb)
-                .map(|b| *self.stats[kk * nb + b].lock().expect("stats"))
-                .collect();
-            let limit2 = sim.velocity_limit * sim.velocity_limit;
-            if row
-                .iter()
-                .any(|st| st.nonfinite || st.max_u2.is_nan() || st.max_u2 > limit2)
-            {
-                sim.step = base + k as u64 - 1;
-                let mut e = match sim.finish_step(&row) {
-                    Err(e) => e,
-                    Ok(()) => unreachable!("the row holds a bad statistic"),
-                };
-                e.step = base + kk as u64 + 1;
-                return Err(e);
+            for (b, blk) in sim.blocks.iter().enumerate() {
+                if blk.is_held() && sim.is_unstable(&self.stats[kk * nb + b].lock().expect("stats")) {
+                    return Ok(Some((kk, b)));
+                }
             }
         }
-        sim.step = base + k as u64;
-        Ok(())
+        Ok(None)
+    }
+}
+
+/// An instability report as bytes (to send it to the other ranks).
+fn encode_instability(i: &Instability) -> Vec<u8> {
+    let mut v = Vec::new();
+    for x in [i.step, i.block as u64] {
+        v.extend_from_slice(&x.to_le_bytes());
+    }
+    for x in i.block_coords.iter().chain(&i.cell) {
+        v.extend_from_slice(&(*x as u64).to_le_bytes());
+    }
+    for x in [i.density, i.velocity[0], i.velocity[1], i.velocity[2], i.limit] {
+        v.extend_from_slice(&x.to_bits().to_le_bytes());
+    }
+    v
+}
+
+/// The report of [`encode_instability`].
+fn decode_instability(b: &[u8]) -> Instability {
+    let u = |k: usize| u64::from_le_bytes(b[8 * k..8 * k + 8].try_into().expect("8 bytes"));
+    let f = |k: usize| f64::from_bits(u(k));
+    Instability {
+        step: u(0),
+        block: u(1) as usize,
+        block_coords: [u(2) as usize, u(3) as usize, u(4) as usize],
+        cell: [u(5) as usize, u(6) as usize, u(7) as usize],
+        density: f(8),
+        velocity: [f(9), f(10), f(11)],
+        limit: f(12),
     }
 }
 

@@ -61,6 +61,7 @@
 
 use std::fmt;
 
+pub mod halo;
 mod read;
 mod write;
 

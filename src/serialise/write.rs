@@ -11,12 +11,12 @@ use blockflow_kernels::rigid::Body;
 use blockflow_kernels::{Layout, Real};
 use glam::DVec3;
 
-fn put_v3(s: &mut impl Sink, v: DVec3) {
+pub(super) fn put_v3(s: &mut impl Sink, v: DVec3) {
     for x in v.to_array() {
         put_f64(s, x);
     }
 }
-fn put_count(s: &mut impl Sink, n: usize) {
+pub(super) fn put_count(s: &mut impl Sink, n: usize) {
     put_u32(s, u32::try_from(n).expect("fewer than 2^32 entries per section"));
 }
 
@@ -27,7 +27,7 @@ fn cell_of(l: &Layout, i: usize) -> u32 {
     u32::try_from(x + fx * (y + fy * z)).expect("block below 2^32 cells")
 }
 
-fn put_body(s: &mut impl Sink, b: &Body) {
+pub(super) fn put_body(s: &mut impl Sink, b: &Body) {
     put_u64(s, b.id);
     put_v3(s, b.position);
     for x in b.orientation.to_array() {
@@ -44,7 +44,7 @@ fn put_body(s: &mut impl Sink, b: &Body) {
     put_v3(s, b.torque_prev);
 }
 
-fn put_body_force(s: &mut impl Sink, f: &BodyForce) {
+pub(super) fn put_body_force(s: &mut impl Sink, f: &BodyForce) {
     put_u64(s, f.id);
     put_v3(s, f.force);
     put_v3(s, f.torque);

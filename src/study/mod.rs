@@ -15,6 +15,7 @@
 
 pub mod report;
 
+use crate::balance::weights::BlockState;
 use crate::balance::Balancer;
 use crate::error::Result;
 use crate::metrics::cost_model::Machine;
@@ -69,7 +70,8 @@ impl Candidate {
             return;
         };
         let t0 = blockflow_scheduler::executor::thread_cpu_ns();
-        let dist = bal.rebalance(cx.sim, block_load, self.log.owners());
+        let state = state_for(bal, cx.sim);
+        let dist = bal.rebalance(&state, block_load, self.log.owners());
         let partition = (blockflow_scheduler::executor::thread_cpu_ns() - t0) as f64 * 1e-9;
         let predicted = predicted_imbalance(bal.last_weights(), &dist.owners, p);
         let mut sent = vec![(0u64, 0u64); p];
@@ -118,8 +120,8 @@ impl<T: Real> Observer<T> for Counterfactual {
         let recorded = run.recorded();
         for c in &mut self.candidates {
             c.log.add_run(&recorded);
-            if let Some(b) = c.balancer.as_mut() {
-                b.after_run(cx.sim, run.steps);
+            if let Some(b) = c.balancer.as_mut().filter(|b| b.needs_state_after_runs()) {
+                b.after_run(&BlockState::of(cx.sim), run.steps);
             }
         }
         Ok(())
@@ -132,5 +134,17 @@ impl<T: Real> Observer<T> for Counterfactual {
             }
         }
         Ok(())
+    }
+}
+
+/// The blocks' state a balancer's weights are computed from (empty when they need none).
+fn state_for<T: Real>(bal: &Balancer, sim: &crate::physics::simulation::Simulation<T>) -> BlockState {
+    if bal.needs_state() {
+        BlockState::of(sim)
+    } else {
+        BlockState {
+            quantities: Vec::new(),
+            dry: false,
+        }
     }
 }

@@ -19,20 +19,24 @@ pub mod setup;
 
 pub use observer::{Flow, Handle, Observer, RunContext, RunEnd};
 
+use crate::balance::weights::BlockState;
 use crate::balance::Balancer;
 use crate::config::Config;
 use crate::error::Result;
+use crate::estimator::Quantities;
 use crate::metrics::cost_model::{CommModel, Machine};
 use crate::metrics::interval::{IntervalLog, IntervalStats};
 use crate::metrics::load::predicted_imbalance;
 use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
 use crate::pipeline::{Pipeline, PipelineConfig};
+use crate::ranks::World;
 use crate::scenes::Scene;
 use blockflow_kernels::Real;
-use blockflow_scheduler::executor::{Executor, Steal};
-use setup::{build_sim, coefficients, make_executor, InitialAssignment};
+use blockflow_scheduler::executor::Steal;
+use setup::{build_state, coefficients, make_executor, make_rank_executor, InitialAssignment};
 use std::marker::PhantomData;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// What a run records beyond its totals and intervals.
@@ -58,6 +62,8 @@ pub struct TimeLoop<T: Real> {
     stepping_seconds: f64,
     /// The pipeline's CPU seconds per part after the last recorded graph run.
     parts_before: ByPart<f64>,
+    /// The ranks the run is spread over (one, under virtual processes).
+    world: Arc<World>,
 }
 
 impl<T: Real> TimeLoop<T> {
@@ -66,17 +72,47 @@ impl<T: Real> TimeLoop<T> {
     /// interval), the pipeline, the balancer of `balance.strategy`, and the first touch of every block by
     /// its owner.
     pub fn from_config(cfg: &Config, scene: &Scene, recording: Recording) -> Result<Self> {
-        let sim = build_sim::<T>(cfg, scene)?;
-        let exec = make_executor(cfg)?;
+        Self::on_world(cfg, scene, recording, Arc::new(World::single()))
+    }
+
+    /// The run of a configuration on this rank of `world` ([`TimeLoop::from_config`] when the world has
+    /// one rank). With several, `processes.count` must be the number of ranks (each rank is one
+    /// process of `processes.threads_per_process` threads), every rank builds the same block structure
+    /// and initial assignment, holds only its own blocks' data, and every rank calls every method of the
+    /// time loop in the same order.
+    pub fn on_world(cfg: &Config, scene: &Scene, recording: Recording, world: Arc<World>) -> Result<Self> {
+        let mut sim = build_state::<T>(cfg, scene)?;
+        let exec = if world.is_single() {
+            make_executor(cfg)?
+        } else {
+            make_rank_executor(cfg, &world)?
+        };
         let coeffs = coefficients(cfg)?;
         let init = InitialAssignment::of(cfg, &sim, coeffs.as_ref());
-        let machine = Self::machine_of(&exec, CommModel::of(&cfg.balance));
-        let predicted = predicted_imbalance(&init.weights, &init.owners, machine.processes);
+        if !world.is_single() {
+            let me = world.rank();
+            for b in sim.blocks.iter().filter(|b| init.owners[b.id] != me as u32) {
+                // SAFETY: nothing runs yet.
+                unsafe { b.release() };
+            }
+            if let Some(parts) = sim.particles.as_mut() {
+                // SAFETY: as above.
+                unsafe { parts.hold_only(init.owners.iter().map(|&o| o as usize == me).collect()) };
+            }
+        }
+        sim.init(&scene.init);
         let settings = PipelineConfig {
             block_parts: recording.block_parts,
             ..PipelineConfig::of(cfg)
         };
-        let mut pipe = Pipeline::new(&sim, exec, init.owners.clone(), settings);
+        let mut pipe = Pipeline::new(&sim, exec, init.owners.clone(), settings, world.clone());
+        let machine = Machine {
+            processes: pipe.processes(),
+            threads: pipe.executor().threads_per_process(),
+            global: pipe.executor().steal() == Steal::Global,
+            comm: CommModel::of(&cfg.balance),
+        };
+        let predicted = predicted_imbalance(&init.weights, &init.owners, machine.processes);
         if recording.trace {
             pipe.enable_trace();
         }
@@ -92,17 +128,36 @@ impl<T: Real> TimeLoop<T> {
             observers: Vec::new(),
             stepping_seconds: 0.0,
             parts_before: ByPart::default(),
+            world,
         })
     }
 
-    /// The machine an executor's run is modeled on.
-    fn machine_of(exec: &Executor, comm: CommModel) -> Machine {
-        Machine {
-            processes: exec.processes(),
-            threads: exec.threads_per_process(),
-            global: exec.steal() == Steal::Global,
-            comm,
+    /// The ranks the run is spread over.
+    pub fn world(&self) -> &Arc<World> {
+        &self.world
+    }
+
+    /// Every block's state the block weights are computed from: this process's blocks, or under ranks
+    /// every rank's gathered in block-id order.
+    fn block_state(&self) -> Result<BlockState> {
+        if self.world.is_single() {
+            return Ok(BlockState::of(&self.sim));
         }
+        let held = self.sim.blocks.iter().filter(|b| b.is_held());
+        let mine = held
+            .map(|b| {
+                let q = Quantities::of(&self.sim, b.id);
+                (b.id, serde_json::to_vec(&q).expect("quantities serialise"))
+            })
+            .collect();
+        let all = self.world.all_blocks(self.sim.blocks.len(), mine)?;
+        Ok(BlockState {
+            quantities: all
+                .iter()
+                .map(|b| serde_json::from_slice(b).expect("quantities from a rank of this run"))
+                .collect(),
+            dry: self.sim.fluid_cells() == 0,
+        })
     }
 
     /// The simulation.
@@ -205,7 +260,9 @@ impl<T: Real> TimeLoop<T> {
             let s = self.sim.step;
             let k = (stop - s).min(self.interval - s % self.interval);
             let ran = self.pipe.run(&mut self.sim, k as usize);
-            self.record_run(k as usize);
+            if !matches!(ran, Err(crate::error::Error::Aborted { .. })) {
+                self.record_run(k as usize)?;
+            }
             ran?;
             self.notify(|o, cx| o.after_run(cx), true)?;
             if self.sim.step.is_multiple_of(self.interval) {
@@ -222,10 +279,13 @@ impl<T: Real> TimeLoop<T> {
         self.notify(|o, cx| o.finish(cx, end), false)
     }
 
-    /// The last graph run's times into the interval under way, and the corrector's bookkeeping.
-    fn record_run(&mut self, k: usize) {
-        let Some(run) = self.pipe.last_run() else { return };
-        self.log.add_run(&run.recorded());
+    /// The last graph run's times into the interval under way, and the corrector's bookkeeping. (Under
+    /// ranks the modeled times are not computed: each rank knows only its share of the graph.)
+    fn record_run(&mut self, k: usize) -> Result<()> {
+        let Some(run) = self.pipe.last_run() else { return Ok(()) };
+        if self.world.is_single() {
+            self.log.add_run(&run.recorded());
+        }
         let cur = self.log.current_mut();
         cur.wall_seconds += run.wall_seconds;
         cur.message_bytes += run.message_bytes;
@@ -237,26 +297,42 @@ impl<T: Real> TimeLoop<T> {
         for (acc, x) in self.block_load.iter_mut().zip(run.block_load) {
             *acc += x;
         }
-        if let Some(b) = self.balancer.as_mut() {
-            b.after_run(&self.sim, k);
+        if self.balancer.as_ref().is_some_and(|b| b.needs_state_after_runs()) {
+            let state = self.block_state()?;
+            self.balancer.as_mut().expect("checked").after_run(&state, k);
         }
+        Ok(())
     }
 
     /// Closes the interval under way (nothing when no step was taken since the last one); with
     /// `balance`, the balancing step follows: weights, the strategy's owners, migration, re-arm.
     fn close_interval(&mut self, balance: bool) -> Result<()> {
         let step = self.sim.step;
+        if step <= self.log.current_mut().start {
+            return Ok(());
+        }
+        if !self.world.is_single() {
+            self.gather_interval()?;
+        }
         if self.log.close(step, &self.block_load, &self.sim.domain).is_none() {
             return Ok(());
         }
         self.block_load.iter_mut().for_each(|x| *x = 0.0);
-        if balance {
+        if balance && self.balancer.is_some() {
+            let t0 = Instant::now();
+            let state = if self.balancer.as_ref().is_some_and(|b| b.needs_state()) {
+                self.block_state()?
+            } else {
+                BlockState {
+                    quantities: Vec::new(),
+                    dry: false,
+                }
+            };
             if let Some(bal) = self.balancer.as_mut() {
-                let t0 = Instant::now();
                 let load = &self.log.intervals().last().expect("closed above").block_load;
-                let dist = bal.rebalance(&self.sim, load, self.log.owners());
+                let dist = bal.rebalance(&state, load, self.log.owners());
                 let predicted = predicted_imbalance(bal.last_weights(), &dist.owners, self.log.machine().processes);
-                let (moved, bytes) = self.pipe.set_owners(&self.sim, dist.owners.clone());
+                let (moved, bytes) = self.pipe.set_owners(&mut self.sim, dist.owners.clone())?;
                 let secs = t0.elapsed().as_secs_f64();
                 bal.migrated += moved as u64;
                 bal.seconds += secs;
@@ -269,6 +345,38 @@ impl<T: Real> TimeLoop<T> {
         }
         let iv = self.log.intervals().last().expect("closed above").clone();
         self.notify(|o, cx| o.interval_closed(cx, &iv, balance), balance)
+    }
+
+    /// Under ranks: every rank's loads of its own blocks over the interval under way, in block-id order,
+    /// and the ranks' task seconds per part, message bytes (summed in rank order) and wall seconds (the
+    /// longest), so that every rank closes the same interval and takes the same balancing decision.
+    fn gather_interval(&mut self) -> Result<()> {
+        let nb = self.sim.blocks.len();
+        let held = |b: usize| self.sim.blocks[b].is_held();
+        let mine = (0..nb).filter(|&b| held(b)).map(|b| (b, self.block_load[b])).collect();
+        self.block_load = self.world.all_block_values(nb, mine)?;
+        let cur = self.log.current_mut();
+        let mut mine: Vec<f64> = Part::ALL.iter().map(|&p| cur.part_seconds[p]).collect();
+        mine.push(cur.message_bytes as f64);
+        mine.push(cur.wall_seconds);
+        let bytes: Vec<u8> = mine.iter().flat_map(|x| x.to_bits().to_le_bytes()).collect();
+        let all: Vec<Vec<f64>> = self
+            .world
+            .allgather(&bytes)?
+            .iter()
+            .map(|r| {
+                r.chunks_exact(8)
+                    .map(|c| f64::from_bits(u64::from_le_bytes(c.try_into().expect("8"))))
+                    .collect()
+            })
+            .collect();
+        let n = Part::ALL.len();
+        for (i, &p) in Part::ALL.iter().enumerate() {
+            cur.part_seconds[p] = all.iter().map(|r| r[i]).sum();
+        }
+        cur.message_bytes = all.iter().map(|r| r[n] as u64).sum();
+        cur.wall_seconds = all.iter().map(|r| r[n + 1]).fold(0.0, f64::max);
+        Ok(())
     }
 
     fn at_stop(&mut self) -> Result<Flow> {
@@ -295,6 +403,7 @@ impl<T: Real> TimeLoop<T> {
         let mut observers = std::mem::take(&mut self.observers);
         let cx = RunContext {
             sim: &self.sim,
+            world: &self.world,
             owners: self.pipe.owners(),
             balancer: self.balancer.as_ref(),
             run: if with_run { self.pipe.last_run() } else { None },

@@ -14,8 +14,11 @@ use std::marker::PhantomData;
 /// What an observer sees: the state, the assignment, the balancer, the finished intervals and, after a
 /// graph run, that run's record.
 pub struct RunContext<'a, T: Real> {
-    /// The simulation (the state after the last graph run).
+    /// The simulation (the state after the last graph run; under ranks, this rank's blocks of it).
     pub sim: &'a Simulation<T>,
+    /// The ranks the run is spread over: a view of the whole state under ranks is a collective (every
+    /// rank's observer calls it at the same point; [`crate::ranks`]).
+    pub world: &'a crate::ranks::World,
     /// The owner process of every block now.
     pub owners: &'a [u32],
     /// The live balancer (absent: the assignment never changes).

@@ -22,6 +22,14 @@ use std::path::Path;
 /// Builds the simulation of a scene: domain resolved, blocks built, bodies distributed and mapped,
 /// initial state set.
 pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> {
+    let mut sim = build_state(cfg, scene)?;
+    sim.init(&scene.init);
+    Ok(sim)
+}
+
+/// [`build_sim`] without the initial state: the blocks' fluid is left at rest (zero PDFs, no page
+/// touched), for the caller to give up the blocks it will not hold before [`Simulation::init`].
+pub fn build_state<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> {
     let domain = scenes::domain_for(&cfg.domain, scene)?;
     let mut geometry = scene.geometry.clone();
     geometry.no_fluid |= !cfg.fluid.enabled;
@@ -55,7 +63,6 @@ pub fn build_sim<T: Real>(cfg: &Config, scene: &Scene) -> Result<Simulation<T>> 
             domain.cells()
         )));
     }
-    sim.init(&scene.init);
     Ok(sim)
 }
 
@@ -118,6 +125,37 @@ pub fn make_executor(cfg: &Config) -> Result<Executor> {
     .map_err(|e| Error::Config(format!("[processes]: {e}")))
 }
 
+/// Starts the worker threads of one rank of `world`: one process of `processes.threads_per_process`
+/// threads, pinned by `processes.pin` to the rank's share of the cores a run of `processes.count` =
+/// ranks processes would use on this machine (the ranks of an in-process group share it).
+pub fn make_rank_executor(cfg: &Config, world: &crate::ranks::World) -> Result<Executor> {
+    let pr = &cfg.processes;
+    let ranks = world.ranks();
+    if pr.count != ranks {
+        return Err(Error::Config(format!(
+            "processes.count = {} on {ranks} ranks: each rank is one process; set processes.count = {ranks} or              leave it out",
+            pr.count
+        )));
+    }
+    if pr.steal == StealConfig::Global {
+        return Err(Error::Config(
+            "processes.steal = \"global\" needs the processes to share memory; ranks do not: use \"process\"".into(),
+        ));
+    }
+    let topo = Topology::detect();
+    let t = pr.threads_per_process;
+    let cores =
+        placement(&topo, ranks, t, &pin_policy(cfg)?).map_err(|e| Error::Config(format!("processes.pin: {e}")))?;
+    let r = world.rank();
+    Executor::new(PoolConfig {
+        processes: 1,
+        threads_per_process: t,
+        cores: cores[r * t..(r + 1) * t].to_vec(),
+        steal: Steal::Process,
+    })
+    .map_err(|e| Error::Config(format!("[processes] of rank {r}: {e}")))
+}
+
 /// The estimator coefficients of `balance.coefficients` when `balance.weights` needs them (`estimator`,
 /// `corrected`): the file, or for the default path without such a file in the working folder the copy
 /// built into the binary; the error names the file and key.
@@ -151,7 +189,7 @@ pub struct InitialAssignment {
 impl InitialAssignment {
     /// The initial assignment of `cfg` for `sim` on `cfg.processes.count` processes.
     pub fn of<T: Real>(cfg: &Config, sim: &Simulation<T>, coefficients: Option<&Coefficients>) -> Self {
-        let weights = weights::initial(cfg.balance.weights, sim, coefficients);
+        let weights = weights::initial(cfg.balance.weights, &weights::BlockState::of(sim), coefficients);
         let owners = balance::assign_with(
             sim.domain.blocks,
             &weights,

@@ -122,6 +122,9 @@ pub struct RunRecords {
     pub records: Vec<TaskRecord>,
     /// Wall time of the whole run as the driver saw it (publishing, executing, collecting), nanoseconds.
     pub wall_ns: u64,
+    /// Whether the driver's progress function gave the run up ([`Releaser::cancel`]): the tasks not yet
+    /// started never ran.
+    pub cancelled: bool,
 }
 
 /// A pool of `P × T` persistent, pinned worker threads that runs task graphs (see the module docs).
@@ -463,7 +466,11 @@ impl Executor {
         if let Some(payload) = panic {
             panic::resume_unwind(payload);
         }
-        RunRecords { records, wall_ns }
+        RunRecords {
+            records,
+            wall_ns,
+            cancelled: job.aborted.into_inner(),
+        }
     }
 
     /// Runs `f(process)` once on the first worker of every process, all processes concurrently, and returns
@@ -506,6 +513,7 @@ pub struct Releaser<'a> {
     shared: Option<&'a Shared>,
     graph: Option<&'a TaskGraph>,
     counters: &'a [AtomicU32],
+    aborted: Option<&'a AtomicBool>,
     released: u64,
     left: u64,
 }
@@ -516,8 +524,18 @@ impl Releaser<'_> {
             shared: None,
             graph: None,
             counters: &[],
+            aborted: None,
             released: 0,
             left: 0,
+        }
+    }
+
+    /// Gives the run up (e.g. another rank failed, so the messages it waits for will never come): the
+    /// tasks running now finish, the others never start, and the run returns with
+    /// [`RunRecords::cancelled`] set once no task runs any more.
+    pub fn cancel(&mut self) {
+        if let Some(a) = self.aborted {
+            a.store(true, Ordering::Release);
         }
     }
 
@@ -529,6 +547,11 @@ impl Releaser<'_> {
     /// If the run has no external dependency left to release.
     pub fn release(&mut self, t: TaskId) {
         assert!(self.left > 0, "task {t} released after every external dependency was");
+        if self.aborted.is_some_and(|a| a.load(Ordering::Acquire)) {
+            // Nothing starts in a run given up.
+            self.left -= 1;
+            return;
+        }
         let (sh, graph) = (self.shared.expect("a run"), self.graph.expect("a run"));
         self.left -= 1;
         self.released += 1;
@@ -560,6 +583,7 @@ fn drive(
         shared: Some(sh),
         graph: Some(graph),
         counters,
+        aborted: Some(aborted),
         released: 0,
         left: graph.external_total(),
     };
@@ -568,7 +592,8 @@ fn drive(
         let did = progress(&mut r);
         let idle_pool = sh.pending.load(Ordering::Acquire) == 0;
         if idle_pool && (r.left == 0 || aborted.load(Ordering::Acquire)) {
-            // Done, or a task panicked: the rest of the graph is abandoned (the panic is resumed).
+            // Done, or a task panicked or the run was cancelled: the rest of the graph is abandoned (a
+            // panic is resumed).
             break;
         }
         if did {

@@ -425,3 +425,36 @@ fn two_drivers_pass_messages_between_their_graphs() {
     let want: Vec<(u32, u32)> = (0..N).flat_map(|t| [(0, t), (1, t)]).collect();
     assert_eq!(log, want);
 }
+
+/// A run whose driver gives up (the message a task waits for will never come) ends: the tasks already
+/// ready run or are dropped, the waiting one never runs, and the pool stays usable.
+#[test]
+fn a_cancelled_run_ends_without_its_waiting_tasks() {
+    let pool = Executor::new(PoolConfig::unpinned(1, 2)).unwrap();
+    let mut g = GraphBuilder::new();
+    let a = g.add(TaskSpec::for_owner(0));
+    let b = g.add(TaskSpec::for_owner(0));
+    let c = g.add(TaskSpec::for_owner(0));
+    g.edge(a, b);
+    g.external(c, 1);
+    let g = g.build().unwrap();
+    let ran: Vec<AtomicU32> = (0..3).map(|_| AtomicU32::new(0)).collect();
+    let mut calls = 0;
+    let rec = pool.run_with_progress(
+        &g,
+        |t, _, _| {
+            ran[t as usize].fetch_add(1, Ordering::SeqCst);
+        },
+        |r| {
+            calls += 1;
+            if ran[b as usize].load(Ordering::SeqCst) == 1 {
+                r.cancel();
+            }
+            false
+        },
+    );
+    assert!(rec.cancelled && calls > 0);
+    assert_eq!(ran[c as usize].load(Ordering::SeqCst), 0);
+    let (g2, e2) = chain(20, 1);
+    check(&pool, &g2, &e2);
+}

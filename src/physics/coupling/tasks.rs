@@ -98,11 +98,10 @@ pub unsafe fn forces_task<T: Real>(parts: &Particles, blocks: &[Block<T>], b: us
     for body in list.bodies.iter_mut() {
         let (mut f, mut t) = (DVec3::ZERO, DVec3::ZERO);
         for &m in &pb.near {
-            if let Some(pc) = blocks[m].particle_cells() {
-                if let Ok(k) = pc.forces.binary_search_by_key(&body.id, |x| x.id) {
-                    f += pc.forces[k].force;
-                    t += pc.forces[k].torque;
-                }
+            let forces = blocks[m].body_forces();
+            if let Ok(k) = forces.binary_search_by_key(&body.id, |x| x.id) {
+                f += forces[k].force;
+                t += forces[k].torque;
             }
         }
         if average {
@@ -132,17 +131,25 @@ pub fn map_all<T: Real>(parts: &Particles, blocks: &[Block<T>], steps: u64) {
 /// Hydrodynamic force and torque on every body from the last boundary pass, summed over blocks in
 /// block-id order, sorted by body id.
 pub fn total_forces<T: Real>(blocks: &[Block<T>]) -> Vec<BodyForce> {
+    sum_forces(
+        blocks
+            .iter()
+            .map(|b| b.particle_cells().map_or(&[][..], |pc| &pc.forces)),
+    )
+}
+
+/// The per-block force lists (given in ascending block-id order) summed per body in that order, sorted
+/// by body id.
+pub fn sum_forces<'a>(per_block: impl IntoIterator<Item = &'a [BodyForce]>) -> Vec<BodyForce> {
     let mut all: Vec<BodyForce> = Vec::new();
-    for blk in blocks {
-        if let Some(pc) = blk.particle_cells() {
-            for f in &pc.forces {
-                match all.iter_mut().find(|x| x.id == f.id) {
-                    Some(x) => {
-                        x.force += f.force;
-                        x.torque += f.torque;
-                    }
-                    None => all.push(*f),
+    for list in per_block {
+        for f in list {
+            match all.iter_mut().find(|x| x.id == f.id) {
+                Some(x) => {
+                    x.force += f.force;
+                    x.torque += f.torque;
                 }
+                None => all.push(*f),
             }
         }
     }

@@ -198,6 +198,14 @@ impl BlockBodies {
     pub unsafe fn work(&self) -> &Work {
         &*self.work.get()
     }
+
+    /// Replaces the velocity changes of the last `rb` result (the copy of a block another rank holds).
+    ///
+    /// # Safety
+    /// No task may read or write this block's `work` concurrently.
+    pub unsafe fn set_deltas(&self, deltas: Vec<Delta>) {
+        (*self.work.get()).deltas = deltas;
+    }
 }
 
 /// Counters over a run (rapier-style per-stage counters).
@@ -226,6 +234,12 @@ pub struct Particles {
     pub blocks: Vec<BlockBodies>,
     /// Whether a block gets rigid-body tasks in the current graph (see [`Particles::update_active`]).
     pub active: Vec<bool>,
+    /// Whether this process holds a block's bodies (every block under virtual processes; under ranks the
+    /// rank's own blocks, the others' lists being copies of those near its blocks). The global views
+    /// ([`Particles::bodies`], [`Particles::checksum`], the statistics) cover the held blocks.
+    held: Vec<bool>,
+    /// Whether any body can move (fixed bodies alone are mapped once and need no rigid-body tasks).
+    moving: bool,
     /// Counters.
     pub counters: RigidCounters,
     domain: DomainSpec,
@@ -305,6 +319,8 @@ impl Particles {
             dt,
             blocks: Vec::new(),
             active: vec![false; nb],
+            held: vec![true; nb],
+            moving: !all_fixed,
             counters: RigidCounters::default(),
             domain,
             halo,
@@ -336,7 +352,29 @@ impl Particles {
 
     /// Whether any body can move (fixed bodies alone are mapped once and need no rigid-body tasks).
     pub fn has_moving(&self) -> bool {
-        self.bodies(0).iter().chain(self.bodies(1).iter()).any(|b| !b.fixed)
+        self.moving
+    }
+
+    /// Whether this process holds block `b`'s bodies (see the field's docs).
+    pub fn is_held(&self, b: usize) -> bool {
+        self.held[b]
+    }
+
+    /// Holds the blocks of `held` only: the lists and rigid-body results of every other block are
+    /// emptied (they become copies, filled from the messages of the rank that holds the block).
+    ///
+    /// # Safety
+    /// No task may run.
+    pub unsafe fn hold_only(&mut self, held: Vec<bool>) {
+        assert_eq!(held.len(), self.blocks.len());
+        for (b, blk) in self.blocks.iter().enumerate() {
+            if !held[b] {
+                blk.replace_published(0, Published::default());
+                blk.replace_published(1, Published::default());
+                blk.replace_work(Work::default());
+            }
+        }
+        self.held = held;
     }
 
     /// The block decomposition the bodies live on.
@@ -390,21 +428,24 @@ impl Particles {
         ((steps * self.phases()) % 2) as usize
     }
 
-    /// All bodies after `steps` whole steps, sorted by id (the global view for output and observables).
+    /// All bodies of the held blocks after `steps` whole steps, sorted by id (the global view for output
+    /// and observables; under ranks the rank's share of it).
     pub fn bodies(&self, steps: u64) -> Vec<Body> {
         let p = self.parity(steps);
         // SAFETY: called between graph runs (nothing runs concurrently).
         let mut all: Vec<Body> = self
             .blocks
             .iter()
+            .filter(|b| self.held[b.id])
             .flat_map(|b| unsafe { b.published(p) }.bodies.iter().copied())
             .collect();
         all.sort_by_key(|b| b.id);
         all
     }
 
-    /// A hash of the exact bits of every body's state (id, position, orientation, velocities), combined
-    /// by wrapping addition: independent of the block layout, process count and order.
+    /// A hash of the exact bits of every body's state (id, position, orientation, velocities) of the held
+    /// blocks, combined by wrapping addition: independent of the block layout, process count and order
+    /// (under ranks, the ranks' hashes add up to it).
     pub fn checksum(&self, steps: u64) -> u64 {
         let mut sum = 0u64;
         for b in self.bodies(steps) {
@@ -437,6 +478,21 @@ impl Particles {
     /// largest speed and acceleration, plus one cell). A body that still leaves this region stops the
     /// run with an error naming it (checked in `rb_sync`). Returns whether the set changed.
     pub fn update_active(&mut self, steps: u64, bodies: &[Body]) -> bool {
+        let active = self.reach(steps, bodies);
+        self.set_active(active)
+    }
+
+    /// Sets the blocks that get rigid-body tasks (e.g. the union of every rank's [`Particles::reach`]);
+    /// returns whether the set changed.
+    pub fn set_active(&mut self, active: Vec<bool>) -> bool {
+        assert_eq!(active.len(), self.blocks.len());
+        let changed = active != self.active;
+        self.active = active;
+        changed
+    }
+
+    /// The blocks `bodies` can reach in the next `steps` steps (see [`Particles::update_active`]).
+    pub fn reach(&self, steps: u64, bodies: &[Body]) -> Vec<bool> {
         let t = steps as f64 * self.dt;
         let g = self.params.gravity.length();
         let d = self.domain;
@@ -480,9 +536,7 @@ impl Particles {
                 }
             }
         }
-        let changed = active != self.active;
-        self.active = active;
-        changed
+        active
     }
 
     /// Records a failure found by a task (reported after the graph run, lowest sub-step then block first).
@@ -492,33 +546,55 @@ impl Particles {
 
     /// The first failure recorded since the last call, if any.
     pub fn take_error(&self) -> Option<String> {
-        let mut e = self.errors.lock().expect("particle errors");
-        e.sort_by_key(|x| (x.0, x.1));
-        let first = e.first().map(|x| x.2.clone());
-        e.clear();
-        first
+        self.take_error_keyed().map(|x| x.2)
     }
 
     /// Adds the per-block statistics gathered since the last call to the counters, in block order (call
     /// between graph runs).
     pub fn collect_stats(&mut self, substeps: u64) {
+        let (contacts, pen) = self.take_stats();
+        self.add_stats(substeps, contacts, pen);
+    }
+
+    /// The held blocks' statistics since the last call (owned contacts summed over sub-steps, the largest
+    /// penetration), reset to zero: this process's part of [`Particles::collect_stats`].
+    pub fn take_stats(&mut self) -> (u64, f64) {
         let mut contacts = 0u64;
-        for b in self.blocks.iter_mut() {
+        let mut pen: f64 = 0.0;
+        let held = &self.held;
+        for b in self.blocks.iter_mut().filter(|b| held[b.id]) {
             let w = b.work.get_mut();
             contacts += w.contacts_total;
-            self.counters.max_penetration = self.counters.max_penetration.max(w.max_penetration_total);
+            pen = pen.max(w.max_penetration_total);
             w.contacts_total = 0;
             w.max_penetration_total = 0.0;
         }
+        (contacts, pen)
+    }
+
+    /// Adds `substeps` sub-steps with `contacts` owned contacts and a largest penetration of `pen` (every
+    /// process's [`Particles::take_stats`] combined) to the counters.
+    pub fn add_stats(&mut self, substeps: u64, contacts: u64, pen: f64) {
+        self.counters.max_penetration = self.counters.max_penetration.max(pen);
         self.counters.substeps += substeps;
         self.counters.contacts += contacts;
     }
 
-    /// Largest penetration and number of contacts of the last sub-step, over all blocks (block order).
+    /// The first failure recorded since the last call, with its key (sub-step, block), if any.
+    pub fn take_error_keyed(&self) -> Option<(u64, usize, String)> {
+        let mut e = self.errors.lock().expect("particle errors");
+        e.sort_by_key(|x| (x.0, x.1));
+        let first = e.first().cloned();
+        e.clear();
+        first
+    }
+
+    /// Largest penetration and number of contacts of the last sub-step, over the held blocks (block
+    /// order).
     pub fn last_contacts(&self) -> (usize, f64) {
         let mut n = 0;
         let mut pen: f64 = 0.0;
-        for b in self.blocks.iter().filter(|b| self.active[b.id]) {
+        for b in self.blocks.iter().filter(|b| self.active[b.id] && self.held[b.id]) {
             // SAFETY: between graph runs.
             let w = unsafe { b.work() };
             n += w.contacts;

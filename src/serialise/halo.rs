@@ -1,0 +1,144 @@
+//! The particle state of a block that crosses ranks, in the codec of the block format: its published
+//! list (bodies, home blocks and, with `particles.rounds` > 1, its owned contacts' impulses), the
+//! velocity changes of its last rigid-body task and the body forces of its last boundary pass. A rank
+//! keeps copies of these for the blocks of other ranks next to its own, and the bytes carry the exact
+//! bits, so a copy reads as the original.
+
+use super::read::BlockReader;
+use super::write::{put_body, put_body_force, put_count, put_v3};
+use super::FormatError;
+use crate::physics::particle_cells::BodyForce;
+use crate::physics::particles::{Delta, OwnedImpulse, Published};
+use crate::util::bytes::{put_u32, put_u64, Reader};
+
+/// Appends a published list.
+pub fn encode_published(list: &Published, out: &mut Vec<u8>) {
+    debug_assert_eq!(list.bodies.len(), list.homes.len());
+    put_count(out, list.bodies.len());
+    for (b, &h) in list.bodies.iter().zip(&list.homes) {
+        put_body(out, b);
+        put_u32(out, h);
+    }
+    put_count(out, list.owned.len());
+    for o in &list.owned {
+        put_u64(out, o.a);
+        put_u64(out, o.b);
+        put_v3(out, o.impulse);
+    }
+}
+
+/// Reads a published list of [`encode_published`] (home blocks below `blocks`).
+pub fn decode_published(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> {
+    let n = r.count(super::BODY_BYTES + 4)?;
+    let mut list = Published {
+        bodies: Vec::with_capacity(n),
+        homes: Vec::with_capacity(n),
+        owned: Vec::new(),
+    };
+    for _ in 0..n {
+        list.bodies.push(r.body()?);
+        let h = r.u32()?;
+        if h as usize >= blocks {
+            return Err(r.bad(format_args!("home block {h} of {blocks}")).into());
+        }
+        list.homes.push(h);
+    }
+    let n = r.count(40)?;
+    list.owned.reserve(n);
+    for _ in 0..n {
+        list.owned.push(OwnedImpulse {
+            a: r.u64()?,
+            b: r.u64()?,
+            impulse: r.v3()?,
+        });
+    }
+    Ok(list)
+}
+
+/// Appends velocity changes.
+pub fn encode_deltas(deltas: &[Delta], out: &mut Vec<u8>) {
+    put_count(out, deltas.len());
+    for d in deltas {
+        put_u64(out, d.id);
+        put_v3(out, d.dv);
+        put_v3(out, d.dw);
+    }
+}
+
+/// Reads the velocity changes of [`encode_deltas`].
+pub fn decode_deltas(r: &mut Reader) -> Result<Vec<Delta>, FormatError> {
+    let n = r.count(56)?;
+    let mut v = Vec::with_capacity(n);
+    for _ in 0..n {
+        v.push(Delta {
+            id: r.u64()?,
+            dv: r.v3()?,
+            dw: r.v3()?,
+        });
+    }
+    Ok(v)
+}
+
+/// Appends body forces.
+pub fn encode_forces(forces: &[BodyForce], out: &mut Vec<u8>) {
+    put_count(out, forces.len());
+    for f in forces {
+        put_body_force(out, f);
+    }
+}
+
+/// Reads the body forces of [`encode_forces`].
+pub fn decode_forces(r: &mut Reader) -> Result<Vec<BodyForce>, FormatError> {
+    let n = r.count(super::BODY_FORCE_BYTES)?;
+    let mut v = Vec::with_capacity(n);
+    for _ in 0..n {
+        v.push(r.body_force()?);
+    }
+    Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use blockflow_kernels::rigid::Body;
+    use glam::DVec3;
+
+    #[test]
+    fn halo_state_round_trips_bit_for_bit() {
+        let mut body = Body::sphere(7, DVec3::new(1.5, -0.25, 3.0), 0.75, 2.5);
+        body.velocity = DVec3::new(1e-17, -0.0, f64::MIN_POSITIVE);
+        body.force_prev = DVec3::new(0.1, 0.2, 0.3);
+        let list = Published {
+            bodies: vec![body, Body::sphere(9, DVec3::ONE, 1.0, 1.0)],
+            homes: vec![3, 4],
+            owned: vec![OwnedImpulse {
+                a: 7,
+                b: crate::physics::particles::PLANE_KEY | 2,
+                impulse: DVec3::new(-1.0, 0.5, 1e-300),
+            }],
+        };
+        let deltas = vec![Delta {
+            id: 9,
+            dv: DVec3::new(1.0, 2.0, 3.0),
+            dw: DVec3::new(-0.0, 0.0, 5e-324),
+        }];
+        let forces = vec![BodyForce {
+            id: 7,
+            force: DVec3::new(0.5, 0.25, 0.125),
+            torque: DVec3::NEG_ONE,
+        }];
+        let mut out = Vec::new();
+        encode_published(&list, &mut out);
+        encode_deltas(&deltas, &mut out);
+        encode_forces(&forces, &mut out);
+        let mut r = Reader::new(&out, "halo");
+        let back = decode_published(&mut r, 5).unwrap();
+        assert_eq!(format!("{back:?}"), format!("{list:?}"));
+        assert_eq!(decode_deltas(&mut r).unwrap(), deltas);
+        assert_eq!(decode_forces(&mut r).unwrap(), forces);
+        r.finish().unwrap();
+        // A home block outside the grid is refused.
+        let mut r = Reader::new(&out, "halo");
+        assert!(decode_published(&mut r, 4).is_err());
+    }
+}
