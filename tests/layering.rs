@@ -19,7 +19,7 @@ const MAY_USE: &[(&str, &[&str])] = &[
     ("metrics", &["util", "error", "config", "physics"]),
     ("estimator", &["util", "error", "config", "physics"]),
     ("serialise", &["util", "error", "config", "physics"]),
-    ("ranks", &["util", "error", "config"]),
+    ("ranks", &["util", "error", "config", "physics", "serialise"]),
     (
         "pipeline",
         &["util", "error", "config", "physics", "metrics", "serialise", "ranks"],

@@ -59,7 +59,7 @@ fn checksums_identical_for_every_process_layout_pinning_stealing_curve_and_patte
                         let refs: Vec<&str> = sets.iter().map(|s| s.as_str()).collect();
                         let mut tl = timeloop(file, &refs);
                         assert!(tl.pipeline().owners().iter().all(|&o| (o as usize) < p));
-                        let per_step = tl.tasks_per_step() as u64;
+                        let per_step = tl.tasks_per_step().expect("one process") as u64;
                         tl.advance(steps).expect("stable");
                         assert_eq!(tl.sim().step, steps);
                         // every task ran exactly once per step

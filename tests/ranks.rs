@@ -167,3 +167,154 @@ fn blocks_migrate_between_ranks_without_changing_the_result() {
         assert_eq!(*sums, want, "{strategy} on 3 ranks");
     }
 }
+
+// Through the binary: `blockflow run --ranks R`.
+
+fn blockflow(args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_blockflow"))
+        .args(args)
+        .output()
+        .expect("binary runs")
+}
+
+fn run_ok(args: &[&str]) {
+    let mut a = vec!["run"];
+    a.extend_from_slice(args);
+    let r = blockflow(&a);
+    assert!(
+        r.status.success(),
+        "blockflow {a:?}: {}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+}
+
+fn read(p: &std::path::Path) -> Vec<u8> {
+    std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+fn config(file: &str) -> String {
+    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("configs")
+        .join(file)
+        .display()
+        .to_string()
+}
+
+#[test]
+fn a_run_on_ranks_writes_the_outputs_and_checkpoint_of_the_same_run_on_processes() {
+    let dir = common::tmp("ranks-outputs");
+    let hopper = config("hopper-small.toml");
+    // The same output folder for both, so that the checkpoints' configurations agree.
+    let out = dir.join("run");
+    let o = out.display().to_string();
+    let args = [
+        "--steps",
+        "120",
+        "--vtk",
+        "60",
+        "--checkpoint-every",
+        "120",
+        "--balance",
+        "none",
+        "--out",
+        &o,
+    ];
+    let mut saved = Vec::new();
+    for layout in [["--processes", "3"], ["--ranks", "3"]] {
+        let mut a = vec![hopper.as_str()];
+        a.extend_from_slice(&layout);
+        a.extend_from_slice(&args);
+        run_ok(&a);
+        let s: serde_json::Value = serde_json::from_slice(&read(&out.join("summary.json"))).unwrap();
+        let files: Vec<Vec<u8>> = [
+            "checkpoints/step-120",
+            "series.csv",
+            "particles.csv",
+            "vtk/step_00000120/block_00037.vti",
+            "vtk/step_00000120.vtm",
+            "particles.pvd",
+        ]
+        .iter()
+        .map(|f| read(&out.join(f)))
+        .collect();
+        saved.push((
+            s["checksum"].clone(),
+            s["observables"].clone(),
+            s["fluid_cells"].clone(),
+            files,
+        ));
+    }
+    assert_eq!(saved[0].0, saved[1].0, "checksums");
+    assert_eq!(saved[0].1, saved[1].1, "observables");
+    assert_eq!(saved[0].2, saved[1].2, "fluid cells");
+    for (k, (a, b)) in saved[0].3.iter().zip(&saved[1].3).enumerate() {
+        assert!(a == b, "output file {k} differs between 3 processes and 3 ranks");
+    }
+    let s: serde_json::Value = serde_json::from_slice(&read(&out.join("summary.json"))).unwrap();
+    assert_eq!((s["ranks"].as_u64(), s["processes"].as_u64()), (Some(3), Some(3)));
+    assert!(s["balance"]["remote_messages"].as_u64().unwrap() > 0);
+}
+
+#[test]
+fn checkpoints_restart_on_any_number_of_ranks_or_processes() {
+    let dir = common::tmp("ranks-restart");
+    let hopper = config("hopper-small.toml");
+    let straight = dir.join("straight").display().to_string();
+    let base = ["--set", "balance.strategy=\"hilbert\"", "--interval", "40"];
+    let mut a = vec![
+        hopper.as_str(),
+        "--steps",
+        "160",
+        "--processes",
+        "2",
+        "--out",
+        &straight,
+    ];
+    a.extend_from_slice(&base);
+    run_ok(&a);
+    let want: serde_json::Value = serde_json::from_slice(&read(&dir.join("straight").join("summary.json"))).unwrap();
+    for (first, second) in [
+        (["--ranks", "3"], ["--ranks", "2"]),
+        (["--ranks", "2"], ["--processes", "3"]),
+        (["--processes", "1"], ["--ranks", "3"]),
+    ] {
+        let half = dir.join(format!("half-{}", first.join("")));
+        let h = half.display().to_string();
+        let mut a = vec![
+            hopper.as_str(),
+            "--steps",
+            "80",
+            "--checkpoint-every",
+            "80",
+            "--out",
+            &h,
+        ];
+        a.extend_from_slice(&first);
+        a.extend_from_slice(&base);
+        run_ok(&a);
+        let end = dir.join(format!("end-{}-{}", first.join(""), second.join("")));
+        let e = end.display().to_string();
+        let ck = half.join("checkpoints").join("step-80").display().to_string();
+        let mut b = vec!["--restart", ck.as_str(), "--steps", "160", "--out", &e];
+        b.extend_from_slice(&second);
+        run_ok(&b);
+        let got: serde_json::Value = serde_json::from_slice(&read(&end.join("summary.json"))).unwrap();
+        assert_eq!(got["checksum"], want["checksum"], "{first:?} then {second:?}");
+    }
+}
+
+#[test]
+fn a_bad_key_under_ranks_is_one_line_and_exit_1() {
+    let r = blockflow(&[
+        "run",
+        &config("hopper-small.toml"),
+        "--ranks",
+        "3",
+        "--set",
+        "fluid.taux=0.6",
+    ]);
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("taux"), "{err}");
+}

@@ -5,7 +5,7 @@ use crate::balance::Balancer;
 use crate::config::Config;
 use crate::error::{Error, Result};
 use crate::physics::simulation::Simulation;
-use crate::serialise::{checksum, encode_block, BLOCK_FORMAT_VERSION};
+use crate::serialise::{checksum, encode_block, encoded_len, Checksummer, BLOCK_FORMAT_VERSION};
 use crate::util::bytes::{put_f64, put_f64s, put_str8, put_u64, ReadError, Reader};
 use blockflow_kernels::Real;
 use std::path::{Path, PathBuf};
@@ -116,7 +116,27 @@ pub struct CheckpointInput<'a> {
 
 /// Encodes the whole state of `sim` as a checkpoint file's bytes.
 pub fn encode<T: Real>(sim: &Simulation<T>, input: &CheckpointInput) -> Vec<u8> {
-    let mut sections: Vec<(&str, Vec<u8>)> = Vec::new();
+    let lens: Vec<usize> = (0..sim.blocks.len()).map(|b| encoded_len(sim, b)).collect();
+    let mut out = Vec::new();
+    stream(&mut out, sim, input, &lens, |b, v| {
+        encode_block(sim, b, v);
+        Ok(())
+    })
+    .expect("writing to memory does not fail");
+    out
+}
+
+/// Writes the checkpoint file of `sim` to `w` as it goes: the sections before the blocks, then every
+/// block's encoding in id order as `block(id, buffer)` appends it (of `lens[id]` bytes, announced in the
+/// header), the sections after them, the checksum computed along the way. Returns the bytes written.
+/// The blocks may come from other ranks: the file is the same bytes as [`encode`]'s.
+pub fn stream<T: Real>(
+    w: &mut impl std::io::Write,
+    sim: &Simulation<T>,
+    input: &CheckpointInput,
+    lens: &[usize],
+    mut block: impl FnMut(usize, &mut Vec<u8>) -> std::io::Result<()>,
+) -> std::io::Result<u64> {
     let meta = serde_json::json!({
         "format": "blockflow checkpoint",
         "version": CHECKPOINT_VERSION,
@@ -129,49 +149,71 @@ pub fn encode<T: Real>(sim: &Simulation<T>, input: &CheckpointInput) -> Vec<u8> 
         "block_format": BLOCK_FORMAT_VERSION,
         "writer": concat!("blockflow ", env!("CARGO_PKG_VERSION")),
     });
-    sections.push(("meta", meta.to_string().into_bytes()));
-    sections.push(("config", input.config.as_bytes().to_vec()));
-    let mut blocks = Vec::new();
-    put_u64(&mut blocks, sim.blocks.len() as u64);
-    let mut one = Vec::new();
-    for id in 0..sim.blocks.len() {
-        one.clear();
-        encode_block(sim, id, &mut one);
-        put_u64(&mut blocks, one.len() as u64);
-        blocks.extend_from_slice(&one);
-    }
-    sections.push(("blocks", blocks));
+    let mut before: Vec<(&str, Vec<u8>)> = vec![
+        ("meta", meta.to_string().into_bytes()),
+        ("config", input.config.as_bytes().to_vec()),
+    ];
+    let blocks_len = 8 + lens.iter().map(|l| 8 + l).sum::<usize>();
+    let mut after: Vec<(&str, Vec<u8>)> = Vec::new();
     if let Some(p) = &sim.particles {
         let mut v = Vec::new();
         put_u64(&mut v, p.counters.substeps);
         put_u64(&mut v, p.counters.contacts);
         put_f64(&mut v, p.counters.max_penetration);
-        sections.push(("particles", v));
+        after.push(("particles", v));
     }
     if let Some(b) = &input.balance {
         let mut v = Vec::new();
         b.encode(&mut v);
-        sections.push(("balance", v));
+        after.push(("balance", v));
     }
-    let table: usize = sections.iter().map(|(n, _)| 1 + n.len() + 8).sum();
-    let payload: usize = sections.iter().map(|(_, p)| p.len()).sum();
+    let names: Vec<(&str, usize)> = before
+        .iter()
+        .map(|(n, p)| (*n, p.len()))
+        .chain([("blocks", blocks_len)])
+        .chain(after.iter().map(|(n, p)| (*n, p.len())))
+        .collect();
+    let table: usize = names.iter().map(|(n, _)| 1 + n.len() + 8).sum();
+    let payload: usize = names.iter().map(|(_, l)| l).sum();
     let total = HEADER_LEN + table + payload + 8;
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(&CHECKPOINT_MAGIC);
-    out.extend_from_slice(&CHECKPOINT_VERSION.to_le_bytes());
-    put_u64(&mut out, total as u64);
-    out.extend_from_slice(&(sections.len() as u32).to_le_bytes());
-    for (name, p) in &sections {
-        put_str8(&mut out, name);
-        put_u64(&mut out, p.len() as u64);
+    let mut sum = Checksummer::default();
+    let mut put = |w: &mut dyn std::io::Write, bytes: &[u8]| {
+        sum.update(bytes);
+        w.write_all(bytes)
+    };
+    let mut head = Vec::with_capacity(HEADER_LEN + table);
+    head.extend_from_slice(&CHECKPOINT_MAGIC);
+    head.extend_from_slice(&CHECKPOINT_VERSION.to_le_bytes());
+    put_u64(&mut head, total as u64);
+    head.extend_from_slice(&(names.len() as u32).to_le_bytes());
+    for (name, len) in &names {
+        put_str8(&mut head, name);
+        put_u64(&mut head, *len as u64);
     }
-    for (_, p) in &sections {
-        out.extend_from_slice(p);
+    put(w, &head)?;
+    for (_, p) in before.drain(..) {
+        put(w, &p)?;
     }
-    let sum = checksum(&out);
-    put_u64(&mut out, sum);
-    debug_assert_eq!(out.len(), total);
-    out
+    put(w, &(lens.len() as u64).to_le_bytes())?;
+    let mut one = Vec::new();
+    for (id, &len) in lens.iter().enumerate() {
+        one.clear();
+        block(id, &mut one)?;
+        if one.len() != len {
+            return Err(std::io::Error::other(format!(
+                "block {id} encoded to {} bytes, {len} announced",
+                one.len()
+            )));
+        }
+        put(w, &(len as u64).to_le_bytes())?;
+        put(w, &one)?;
+    }
+    for (_, p) in &after {
+        put(w, p)?;
+    }
+    let s = sum.finish();
+    w.write_all(&s.to_le_bytes())?;
+    Ok(total as u64)
 }
 
 // Reading

@@ -63,11 +63,13 @@
 pub mod format;
 pub mod restore;
 
-pub use format::{encode, BalanceState, Checkpoint, CheckpointInput, CHECKPOINT_MAGIC, CHECKPOINT_VERSION};
+pub use format::{encode, stream, BalanceState, Checkpoint, CheckpointInput, CHECKPOINT_MAGIC, CHECKPOINT_VERSION};
 pub use restore::{restart_config, RESTART_MAY_CHANGE};
 
 use crate::error::{io_err, Error, Result};
 use crate::physics::simulation::Simulation;
+use crate::ranks::World;
+use crate::serialise::{encode_block, encoded_len};
 use crate::util::fs::write_atomic_to;
 use blockflow_kernels::Real;
 use std::io::Write;
@@ -109,6 +111,79 @@ pub fn write<T: Real>(dir: &Path, sim: &Simulation<T>, input: &CheckpointInput, 
     Ok(Written {
         path,
         bytes: bytes.len() as u64,
+        seconds: t0.elapsed().as_secs_f64(),
+    })
+}
+
+/// [`write()`] on ranks: rank 0 writes the file as the blocks arrive from their owners, in block-id
+/// order, so it has the bytes a single process writes for the same state; every rank calls this at once
+/// (`owners`: block id → rank) and gets the same result.
+pub fn write_on<T: Real>(
+    dir: &Path,
+    sim: &Simulation<T>,
+    input: &CheckpointInput,
+    keep: usize,
+    world: &World,
+    owners: &[u32],
+) -> Result<Written> {
+    if world.is_single() {
+        return write(dir, sim, input, keep);
+    }
+    let t0 = Instant::now();
+    let nb = sim.blocks.len();
+    let held = (0..nb).filter(|&b| sim.blocks[b].is_held());
+    let lens = world.all_block_values(nb, held.clone().map(|b| (b, encoded_len(sim, b) as f64)).collect())?;
+    let lens: Vec<usize> = lens.iter().map(|&l| l as usize).collect();
+    let tag = world.stream_tag();
+    let t = world.transport();
+    let mut outcome: Vec<u8> = Vec::new();
+    if world.is_root() {
+        let path = file_of(dir, sim.step);
+        let tmp = dir.join(format!(".step-{}.tmp", sim.step));
+        let mut got = vec![false; nb];
+        let written = write_atomic_to(&path, &tmp, true, |w| {
+            stream(w, sim, input, &lens, |b, v| {
+                if owners[b] == 0 {
+                    encode_block(sim, b, v);
+                } else {
+                    *v = t
+                        .recv(owners[b] as usize, tag)
+                        .map_err(|e| std::io::Error::other(e.to_string()))?;
+                    got[b] = true;
+                }
+                Ok(())
+            })
+            .map(|_| ())
+        });
+        // Take what a failed write left unread, so the stream's messages do not outlive it.
+        for b in (0..nb).filter(|&b| owners[b] != 0 && !got[b]) {
+            t.recv(owners[b] as usize, tag).map_err(|e| world.error(e))?;
+        }
+        outcome = match written {
+            Ok(()) => {
+                prune(dir, keep.max(1))?;
+                let size = std::fs::metadata(&path).map_err(|e| io_err(&path, e))?.len();
+                format!("ok\n{size}").into_bytes()
+            }
+            Err((p, e)) if p == dir => format!("error\ncheckpoint folder {}: {e}", dir.display()).into_bytes(),
+            Err((p, e)) => format!("error\ncheckpoint {}: {e}", p.display()).into_bytes(),
+        };
+    } else {
+        for b in held {
+            let mut v = Vec::with_capacity(lens[b]);
+            encode_block(sim, b, &mut v);
+            t.send(0, tag, v).map_err(|e| world.error(e))?;
+        }
+    }
+    world.broadcast(0, &mut outcome)?;
+    let text = String::from_utf8_lossy(&outcome);
+    let (status, rest) = text.split_once('\n').unwrap_or(("error", "no answer from rank 0"));
+    if status != "ok" {
+        return Err(Error::Io(rest.to_string()));
+    }
+    Ok(Written {
+        path: file_of(dir, sim.step),
+        bytes: rest.parse().unwrap_or(0),
         seconds: t0.elapsed().as_secs_f64(),
     })
 }

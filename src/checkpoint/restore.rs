@@ -26,7 +26,8 @@ impl Checkpoint {
     /// interval under way starts at the checkpoint's step.
     pub fn restore_into<T: Real>(&self, tl: &mut TimeLoop<T>) -> Result<()> {
         let (sim, pipe, balancer) = tl.parts_mut();
-        self.restore(sim, pipe.owners(), pipe.executor())?;
+        let local: Vec<Option<u32>> = (0..sim.blocks.len()).map(|b| pipe.local_process(b)).collect();
+        self.restore(sim, &local, pipe.executor())?;
         if let (Some(b), Some(st)) = (balancer, self.balance.as_ref()) {
             st.restore(b);
         }
@@ -35,9 +36,11 @@ impl Checkpoint {
     }
 
     /// Puts the checkpoint's state into `sim`, a fresh simulation of the same configuration whose blocks
-    /// belong to `owners` (block id → process of `exec`): sets the step, decodes every block on a thread
-    /// of its owner (first touch), restores the particle counters. On an error (a block that does not fit) the message names the file and the block.
-    fn restore<T: Real>(&self, sim: &mut Simulation<T>, owners: &[u32], exec: &Executor) -> Result<()> {
+    /// this process holds are run by `local` (block id → process of `exec`; `None`: another rank's block,
+    /// left alone): sets the step, decodes every held block on a thread of its process (first touch),
+    /// restores the particle counters. On an error (a block that does not fit) the message names the
+    /// file and the block.
+    fn restore<T: Real>(&self, sim: &mut Simulation<T>, local: &[Option<u32>], exec: &Executor) -> Result<()> {
         if self.blocks.len() != sim.blocks.len() {
             return Err(self.err(format!(
                 "{} blocks, the configuration has {} (from another scene or domain)",
@@ -59,7 +62,7 @@ impl Checkpoint {
         let errors: Mutex<Vec<(usize, String)>> = Mutex::new(Vec::new());
         let sim_ref: &Simulation<T> = sim;
         exec.on_each_process(|p: u32| {
-            for id in (0..owners.len()).filter(|&id| owners[id] == p) {
+            for id in (0..local.len()).filter(|&id| local[id] == Some(p)) {
                 // SAFETY: no task runs; each block is decoded by exactly one thread (its owner's).
                 if let Err(e) = unsafe { decode_block(sim_ref, id, &self.blocks[id]) } {
                     errors.lock().expect("decode errors").push((id, e.to_string()));

@@ -34,9 +34,14 @@ pub enum StealConfig {
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProcessesConfig {
-    /// Number of virtual processes P.
+    /// Number of virtual processes P (with `ranks` > 1: the ranks, each one process).
     #[serde(default = "one")]
     pub count: usize,
+    /// Ranks that share no memory (`blockflow run --ranks R`): R rank drivers in this OS process, each
+    /// holding only its own blocks and exchanging everything else as messages, the in-process stand-in for
+    /// MPI ranks. 1 (the default): every block in shared memory, split over `count` virtual processes.
+    #[serde(default = "one")]
+    pub ranks: usize,
     /// Threads per process T.
     #[serde(default = "one")]
     pub threads_per_process: usize,
@@ -63,6 +68,7 @@ impl Default for ProcessesConfig {
     fn default() -> Self {
         ProcessesConfig {
             count: 1,
+            ranks: 1,
             threads_per_process: 1,
             pin: PinConfig::default(),
             steal: StealConfig::Process,
@@ -76,12 +82,20 @@ impl ProcessesConfig {
     pub fn validate(&self) -> Result<()> {
         for (name, v) in [
             ("processes.count", self.count),
+            ("processes.ranks", self.ranks),
             ("processes.threads_per_process", self.threads_per_process),
             ("processes.steps_per_graph", self.steps_per_graph),
         ] {
             if v == 0 || v > 4096 {
                 return config_err(format!("{name} = {v}: must be between 1 and 4096"));
             }
+        }
+        if self.ranks > 1 && self.steal == StealConfig::Global {
+            return config_err(format!(
+                "processes.steal = \"global\" with processes.ranks = {}: ranks share no memory, so idle threads \
+                 cannot take another rank's tasks; use \"process\" or one rank",
+                self.ranks
+            ));
         }
         Ok(())
     }

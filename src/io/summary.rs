@@ -160,8 +160,10 @@ pub struct Summary {
     pub block_grid: [usize; 3],
     /// Cells per block and axis.
     pub block_size: [usize; 3],
-    /// Virtual processes.
+    /// Virtual processes (under ranks: the ranks, each one process).
     pub processes: usize,
+    /// Ranks that share no memory (1: every block in one OS process's shared memory).
+    pub ranks: usize,
     /// Threads per process.
     pub threads_per_process: usize,
     /// `"f64"` or `"f32"`.

@@ -75,20 +75,44 @@ impl VtkSeries {
                 )));
             }
         }
+        self.write_blocks(step, pieces)?;
+        let ids: Vec<usize> = pieces.iter().map(|p| p.block_id).collect();
+        self.write_index(step, time, &ids)
+    }
+
+    /// Writes the `.vti` files of one step's pieces into `dir/vtk/step_<step:08>/` (each under a
+    /// temporary name, then renamed): the part of [`VtkSeries::write_step`] that each rank does for its
+    /// own blocks.
+    pub fn write_blocks(&self, step: u64, pieces: &[VtkPiece]) -> io::Result<()> {
+        for p in pieces {
+            check_piece(p)?;
+        }
         let step_name = format!("step_{step:08}");
         let vtk_dir = self.dir.join("vtk");
         fs::create_dir_all(vtk_dir.join(&step_name))?;
+        for p in pieces {
+            let file = format!("{step_name}/block_{:05}.vti", p.block_id);
+            write_atomic(&vtk_dir.join(&file), |w| write_vti(w, p, self.encoding))?;
+        }
+        Ok(())
+    }
+
+    /// Writes the multiblock file of one step, listing the blocks `block_ids` in that order, and the
+    /// collection `dir/fluid.pvd` with every step so far at timestep `time` (writing a step again
+    /// replaces its entry): the part of [`VtkSeries::write_step`] done once per step.
+    pub fn write_index(&mut self, step: u64, time: f64, block_ids: &[usize]) -> io::Result<()> {
+        if !time.is_finite() {
+            return Err(invalid(format!("VTK step {step}: time {time} is not finite")));
+        }
+        let step_name = format!("step_{step:08}");
+        let vtk_dir = self.dir.join("vtk");
         let mut vtm = String::from(
             "<?xml version=\"1.0\"?>\n<VTKFile type=\"vtkMultiBlockDataSet\" version=\"1.0\" \
              byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <vtkMultiBlockDataSet>\n",
         );
-        for (i, p) in pieces.iter().enumerate() {
-            let file = format!("{step_name}/block_{:05}.vti", p.block_id);
-            write_atomic(&vtk_dir.join(&file), |w| write_vti(w, p, self.encoding))?;
-            vtm += &format!(
-                "    <DataSet index=\"{i}\" name=\"block_{}\" file=\"{file}\"/>\n",
-                p.block_id
-            );
+        for (i, id) in block_ids.iter().enumerate() {
+            let file = format!("{step_name}/block_{id:05}.vti");
+            vtm += &format!("    <DataSet index=\"{i}\" name=\"block_{id}\" file=\"{file}\"/>\n");
         }
         vtm += "  </vtkMultiBlockDataSet>\n</VTKFile>\n";
         write_atomic(&vtk_dir.join(format!("{step_name}.vtm")), |w| {

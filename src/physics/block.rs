@@ -527,8 +527,12 @@ impl<T: Real> Block<T> {
         n
     }
 
-    /// Bytes of PDF storage (all fields).
+    /// Bytes of PDF storage this process holds for the block (all its fields; none when another rank
+    /// holds the block).
     pub fn pdf_bytes(&self) -> usize {
+        if !self.is_held() {
+            return 0;
+        }
         self.fields.len() * self.layout.len() * std::mem::size_of::<T>()
     }
 }

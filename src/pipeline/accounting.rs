@@ -39,6 +39,51 @@ pub struct Totals {
     pub unskipped_cpu: ByRule<f64>,
 }
 
+impl Totals {
+    /// The totals of every rank of `world` added up (rank order), on every rank.
+    pub fn summed(&self, world: &crate::ranks::World) -> crate::error::Result<Totals> {
+        if world.is_single() {
+            return Ok(self.clone());
+        }
+        let mut words: Vec<u64> = vec![self.tasks, self.message_bytes, self.remote_messages, self.local_copies];
+        words.extend(self.tasks_by_kind);
+        words.extend(self.unskipped);
+        let mut floats: Vec<f64> = Part::ALL.iter().map(|&p| self.part_cpu[p]).collect();
+        floats.extend(self.cpu_by_kind);
+        floats.extend(self.unskipped_cpu);
+        let bytes: Vec<u8> = words
+            .iter()
+            .copied()
+            .chain(floats.iter().map(|f| f.to_bits()))
+            .flat_map(|w| w.to_le_bytes())
+            .collect();
+        let mut out = Totals::default();
+        for r in world.allgather(&bytes)? {
+            let w: Vec<u64> = r
+                .chunks_exact(8)
+                .map(|c| u64::from_le_bytes(c.try_into().expect("8")))
+                .collect();
+            let (ints, fl) = w.split_at(words.len());
+            let fl: Vec<f64> = fl.iter().map(|&b| f64::from_bits(b)).collect();
+            out.tasks += ints[0];
+            out.message_bytes += ints[1];
+            out.remote_messages += ints[2];
+            out.local_copies += ints[3];
+            let (k, rest) = ints[4..].split_at(out.tasks_by_kind.len());
+            out.tasks_by_kind.iter_mut().zip(k).for_each(|(a, b)| *a += b);
+            out.unskipped.iter_mut().zip(rest).for_each(|(a, b)| *a += b);
+            let (p, rest) = fl.split_at(Part::ALL.len());
+            for (i, &part) in Part::ALL.iter().enumerate() {
+                out.part_cpu[part] += p[i];
+            }
+            let (k, rest) = rest.split_at(out.cpu_by_kind.len());
+            out.cpu_by_kind.iter_mut().zip(k).for_each(|(a, b)| *a += b);
+            out.unskipped_cpu.iter_mut().zip(rest).for_each(|(a, b)| *a += b);
+        }
+        Ok(out)
+    }
+}
+
 /// What the last graph run recorded (owned by the pipeline, lent out as a [`RunRecord`]).
 #[derive(Clone, Debug, Default)]
 pub(super) struct LastRun {

@@ -238,7 +238,7 @@ impl<T: Real> Pipeline<T> {
     }
 
     /// The process of this executor that runs block `b`'s tasks (`None`: another rank's block).
-    fn local_process(&self, b: usize) -> Option<u32> {
+    pub fn local_process(&self, b: usize) -> Option<u32> {
         match self.ranks {
             None => Some(self.owners[b]),
             Some(_) => (self.owners[b] == self.world.rank() as u32).then_some(0),
@@ -415,12 +415,13 @@ impl<T: Real> Pipeline<T> {
         Ok(())
     }
 
-    /// [`Pipeline::run`] on ranks: the active blocks and the graph's shape flags agreed on, the copies of
-    /// the neighbours' particle state refreshed, this rank's graph run with its messages; then the first
-    /// instability or particle failure over all ranks (reported by the rank that found it) and the
-    /// particle statistics summed over them.
-    fn run_ranked(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Error> {
-        let world = self.world.clone();
+    /// Under ranks: the blocks with rigid-body tasks for the next `k` steps (the union of every rank's
+    /// bodies' reach) and the shape flags of every block, agreed on by all ranks (a collective); the
+    /// compiled graphs are dropped when either changed. Nothing under virtual processes.
+    pub fn agree(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Error> {
+        if self.ranks.is_none() {
+            return Ok(());
+        }
         let nb = sim.blocks.len();
         let words = nb.div_ceil(64);
         let mut bits = vec![0u64; 3 * words];
@@ -441,7 +442,7 @@ impl<T: Real> Pipeline<T> {
                 }
             }
         }
-        world.or(&mut bits)?;
+        self.world.or(&mut bits)?;
         let get = |at: usize, b: usize| bits[at * words + b / 64] >> (b % 64) & 1 != 0;
         let flags = ShapeFlags {
             overlay: (0..nb).map(|b| get(1, b)).collect(),
@@ -457,6 +458,17 @@ impl<T: Real> Pipeline<T> {
             self.graphs.clear();
             self.counts.clear();
         }
+        Ok(())
+    }
+
+    /// [`Pipeline::run`] on ranks: the active blocks and the graph's shape flags agreed on, the copies of
+    /// the neighbours' particle state refreshed, this rank's graph run with its messages; then the first
+    /// instability or particle failure over all ranks (reported by the rank that found it) and the
+    /// particle statistics summed over them.
+    fn run_ranked(&mut self, sim: &mut Simulation<T>, k: usize) -> Result<(), Error> {
+        let world = self.world.clone();
+        let nb = sim.blocks.len();
+        self.agree(sim, k)?;
         ranked::halo(sim, &self.owners, &world)?;
         let base = sim.step;
         let bad = self.run_graph(sim, k)?;
@@ -484,7 +496,7 @@ impl<T: Real> Pipeline<T> {
         if first_bad != u64::MAX {
             let (kk, b) = (first_bad / nb as u64, (first_bad % nb as u64) as usize);
             let report = (self.owners[b] == world.rank() as u32).then(|| sim.instability(b, base + kk + 1));
-            let text = self.from_owner(b, report.map(|i| encode_instability(&i)))?;
+            let text = self.owners_bytes(b, report.map(|i| encode_instability(&i)))?;
             return Err(Error::Unstable(decode_instability(&text)));
         }
         if let Some(parts) = sim.particles.as_mut() {
@@ -494,14 +506,14 @@ impl<T: Real> Pipeline<T> {
         }
         if first_err != u64::MAX {
             let b = (first_err % nb as u64) as usize;
-            let text = self.from_owner(b, perr.map(|e| e.2.into_bytes()))?;
+            let text = self.owners_bytes(b, perr.map(|e| e.2.into_bytes()))?;
             return Err(Error::ParticlesUnstable(String::from_utf8_lossy(&text).into_owned()));
         }
         Ok(())
     }
 
     /// The bytes the owner of block `b` has (`mine` there, `None` elsewhere), on every rank.
-    fn from_owner(&self, b: usize, mine: Option<Vec<u8>>) -> Result<Vec<u8>, Error> {
+    fn owners_bytes(&self, b: usize, mine: Option<Vec<u8>>) -> Result<Vec<u8>, Error> {
         let mut bytes = mine.unwrap_or_default();
         self.world.broadcast(self.owners[b] as usize, &mut bytes)?;
         Ok(bytes)

@@ -156,12 +156,15 @@ impl RankGraph {
     }
 }
 
+/// The regions a block sends to one rank, as (receiving block, index in its `recv`), in packing order.
+pub(super) type RegionsTo = (u32, Vec<(usize, usize)>);
+
 /// The ghost regions that cross ranks, seen from one rank: what each of its blocks sends to which rank,
 /// and where each region it receives lies in which message.
 pub(super) struct RankGhosts {
     /// Per block (this rank's; empty for the others): per destination rank, ascending, the regions it
     /// sends there as (receiving block, index in its `recv`), in the order they are packed.
-    pub(super) outgoing: Vec<Vec<(u32, Vec<(usize, usize)>)>>,
+    pub(super) outgoing: Vec<Vec<RegionsTo>>,
     /// Per (receiving block of this rank, index in its `recv`) with a sender on another rank: the sender's
     /// buffer slot and the byte range of the region in the sender's message (after the header).
     pub(super) incoming: Vec<Vec<Option<(usize, usize, usize)>>>,
@@ -177,7 +180,7 @@ impl RankGhosts {
     /// The ghost plan of rank `me` under `owners` (block → rank), for graph runs of up to `steps` steps.
     pub(super) fn new<T: Real>(sim: &Simulation<T>, owners: &[u32], me: u32, steps: usize) -> Self {
         let nb = sim.blocks.len();
-        let mut outgoing: Vec<Vec<(u32, Vec<(usize, usize)>)>> = vec![Vec::new(); nb];
+        let mut outgoing: Vec<Vec<RegionsTo>> = vec![Vec::new(); nb];
         // Regions in receiver order, then region order: the order a sender packs them in.
         for b in &sim.blocks {
             for (r, g) in b.recv.iter().enumerate() {

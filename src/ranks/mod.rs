@@ -14,6 +14,8 @@
 //!
 //! Messages of different purposes never mix: each has its own transport class ([`class`]).
 
+pub mod views;
+
 use crate::error::{Error, Result};
 use blockflow_scheduler::transport::{FloatOp, IntOp, SingleRank, Tag, Transport, TransportError};
 use std::sync::atomic::{AtomicU32, Ordering};
@@ -148,7 +150,7 @@ impl World {
         if self.is_single() {
             return assemble(blocks, [mine]).map(Some);
         }
-        let tag = Tag::new(class::GATHER, self.gathers.fetch_add(1, Ordering::Relaxed) & 0x7fff);
+        let tag = self.stream_tag();
         if !self.is_root() {
             self.transport
                 .send(0, tag, encode_records(&mine))
@@ -161,6 +163,12 @@ impl World {
             parts.push(decode_records(&bytes));
         }
         assemble(blocks, parts).map(Some)
+    }
+
+    /// The tag of a new stream of messages to rank 0 (every rank calls this at the same point, so they all
+    /// name the stream alike): for outputs that rank 0 writes as the pieces arrive.
+    pub fn stream_tag(&self) -> Tag {
+        Tag::new(class::GATHER, self.gathers.fetch_add(1, Ordering::Relaxed) & 0x7fff)
     }
 
     /// One f64 per block on every rank: each rank gives the values of the blocks it holds (see

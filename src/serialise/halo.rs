@@ -10,6 +10,7 @@ use super::FormatError;
 use crate::physics::particle_cells::BodyForce;
 use crate::physics::particles::{Delta, OwnedImpulse, Published};
 use crate::util::bytes::{put_u32, put_u64, Reader};
+use blockflow_kernels::rigid::Body;
 
 /// Appends a published list.
 pub fn encode_published(list: &Published, out: &mut Vec<u8>) {
@@ -53,6 +54,24 @@ pub fn decode_published(r: &mut Reader, blocks: usize) -> Result<Published, Form
         });
     }
     Ok(list)
+}
+
+/// Appends bodies (every field).
+pub fn encode_bodies(bodies: &[Body], out: &mut Vec<u8>) {
+    put_count(out, bodies.len());
+    for b in bodies {
+        put_body(out, b);
+    }
+}
+
+/// Reads the bodies of [`encode_bodies`].
+pub fn decode_bodies(r: &mut Reader) -> Result<Vec<Body>, FormatError> {
+    let n = r.count(super::BODY_BYTES)?;
+    let mut v = Vec::with_capacity(n);
+    for _ in 0..n {
+        v.push(r.body()?);
+    }
+    Ok(v)
 }
 
 /// Appends velocity changes.
@@ -100,7 +119,6 @@ pub fn decode_forces(r: &mut Reader) -> Result<Vec<BodyForce>, FormatError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use blockflow_kernels::rigid::Body;
     use glam::DVec3;
 
     #[test]
@@ -131,11 +149,16 @@ mod tests {
         encode_published(&list, &mut out);
         encode_deltas(&deltas, &mut out);
         encode_forces(&forces, &mut out);
+        encode_bodies(&list.bodies, &mut out);
         let mut r = Reader::new(&out, "halo");
         let back = decode_published(&mut r, 5).unwrap();
         assert_eq!(format!("{back:?}"), format!("{list:?}"));
         assert_eq!(decode_deltas(&mut r).unwrap(), deltas);
         assert_eq!(decode_forces(&mut r).unwrap(), forces);
+        assert_eq!(
+            format!("{:?}", decode_bodies(&mut r).unwrap()),
+            format!("{:?}", list.bodies)
+        );
         r.finish().unwrap();
         // A home block outside the grid is refused.
         let mut r = Reader::new(&out, "halo");

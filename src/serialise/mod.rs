@@ -180,6 +180,64 @@ pub fn checksum(bytes: &[u8]) -> u64 {
     (h ^ bytes.len() as u64).wrapping_mul(PRIME)
 }
 
+/// [`checksum`] computed over bytes given in pieces of any length (a file written as it is streamed).
+#[derive(Clone, Debug)]
+pub struct Checksummer {
+    h: u64,
+    len: u64,
+    tail: [u8; 8],
+    tail_len: usize,
+}
+
+impl Default for Checksummer {
+    fn default() -> Self {
+        Checksummer {
+            h: 0xcbf2_9ce4_8422_2325,
+            len: 0,
+            tail: [0; 8],
+            tail_len: 0,
+        }
+    }
+}
+
+impl Checksummer {
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+
+    /// Adds the next bytes.
+    pub fn update(&mut self, mut bytes: &[u8]) {
+        self.len += bytes.len() as u64;
+        if self.tail_len > 0 {
+            let take = (8 - self.tail_len).min(bytes.len());
+            self.tail[self.tail_len..self.tail_len + take].copy_from_slice(&bytes[..take]);
+            self.tail_len += take;
+            bytes = &bytes[take..];
+            if self.tail_len < 8 {
+                return;
+            }
+            self.h = (self.h ^ u64::from_le_bytes(self.tail)).wrapping_mul(Self::PRIME);
+            self.tail_len = 0;
+        }
+        let mut words = bytes.chunks_exact(8);
+        for w in &mut words {
+            self.h = (self.h ^ u64::from_le_bytes(w.try_into().expect("8 bytes"))).wrapping_mul(Self::PRIME);
+        }
+        let rest = words.remainder();
+        self.tail[..rest.len()].copy_from_slice(rest);
+        self.tail_len = rest.len();
+    }
+
+    /// The checksum of everything given ([`checksum`] of the concatenation).
+    pub fn finish(&self) -> u64 {
+        let mut h = self.h;
+        if self.tail_len > 0 {
+            let mut w = [0u8; 8];
+            w[..self.tail_len].copy_from_slice(&self.tail[..self.tail_len]);
+            h = (h ^ u64::from_le_bytes(w)).wrapping_mul(Self::PRIME);
+        }
+        (h ^ self.len).wrapping_mul(Self::PRIME)
+    }
+}
+
 /// Reads the fixed header (magic, version, lengths, block id, size, step) without checking the rest.
 pub fn peek_header(bytes: &[u8]) -> Result<BlockHeader, FormatError> {
     if bytes.len() < MAGIC.len() {
@@ -230,4 +288,28 @@ pub fn peek_header(bytes: &[u8]) -> Result<BlockHeader, FormatError> {
         block_size: size,
         step,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_streamed_checksum_is_the_checksum_of_the_whole() {
+        let bytes: Vec<u8> = (0..1000u32).map(|i| (i * 37 % 251) as u8).collect();
+        for cuts in [vec![], vec![3], vec![8, 16], vec![1, 2, 3, 4, 5, 999], vec![7, 7, 500]] {
+            let mut c = Checksummer::default();
+            let mut at = 0;
+            for &k in &cuts {
+                c.update(&bytes[at..k]);
+                at = k;
+            }
+            c.update(&bytes[at..]);
+            assert_eq!(c.finish(), checksum(&bytes), "cuts {cuts:?}");
+        }
+        assert_eq!(Checksummer::default().finish(), checksum(&[]));
+        let mut c = Checksummer::default();
+        c.update(&bytes[..5]);
+        assert_eq!(c.finish(), checksum(&bytes[..5]));
+    }
 }

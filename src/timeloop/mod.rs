@@ -197,13 +197,17 @@ impl<T: Real> TimeLoop<T> {
     }
 
     /// Tasks of the one-step graph for the bodies where they are now (the blocks with rigid-body tasks are
-    /// chosen for one step first).
-    pub fn tasks_per_step(&mut self) -> usize {
-        if let Some(p) = self.sim.particles.as_mut() {
-            let bodies = p.bodies(self.sim.step);
-            p.update_active(1, &bodies);
+    /// chosen for one step first); under ranks, this rank's tasks (a collective).
+    pub fn tasks_per_step(&mut self) -> Result<usize> {
+        if self.world.is_single() {
+            if let Some(p) = self.sim.particles.as_mut() {
+                let bodies = p.bodies(self.sim.step);
+                p.update_active(1, &bodies);
+            }
+        } else {
+            self.pipe.agree(&mut self.sim, 1)?;
         }
-        self.pipe.tasks_per_step(&self.sim)
+        Ok(self.pipe.tasks_per_step(&self.sim))
     }
 
     /// Adds an observer; its handle reads it back ([`TimeLoop::observer`]).

@@ -17,6 +17,7 @@ use crate::io::plots;
 use crate::io::summary::Summary;
 use crate::metrics::interval::IntervalStats;
 use crate::physics::simulation::Simulation;
+use crate::ranks::World;
 use crate::scenes::{self, FluidView, Scene};
 use crate::timeloop::{Flow, Recording, RunEnd, TimeLoop};
 use crate::util::fs::{ensure_writable, write_atomic};
@@ -56,6 +57,11 @@ pub struct RunArgs {
     /// Virtual processes P (processes.count).
     #[arg(long)]
     pub processes: Option<usize>,
+    /// Ranks R that share no memory, run in this process (processes.ranks): each holds only its own
+    /// blocks and everything between them is a message, the in-process stand-in for MPI ranks (each rank
+    /// is one process of --threads-per-process threads).
+    #[arg(long)]
+    pub ranks: Option<usize>,
     /// Threads per process T (processes.threads_per_process).
     #[arg(long)]
     pub threads_per_process: Option<usize>,
@@ -121,6 +127,9 @@ impl RunArgs {
         }
         if let Some(p) = self.processes {
             set.push(format!("processes.count={p}"));
+        }
+        if let Some(r) = self.ranks {
+            set.push(format!("processes.ranks={r}"));
         }
         if let Some(t) = self.threads_per_process {
             set.push(format!("processes.threads_per_process={t}"));
@@ -239,33 +248,84 @@ pub fn output_dir(cfg: &Config, opts: &RunOptions) -> PathBuf {
 }
 
 /// Runs a configuration to the end. On an unstable run, summary.json says `"status": "unstable"` and the
-/// error is returned.
+/// error is returned. With `processes.ranks` = R > 1 the run is spread over R ranks in this process that
+/// share no memory (`processes.count` is then R); rank 0's summary is returned, or the error of the rank
+/// that failed first.
 pub fn run(cfg: &Config, opts: &RunOptions) -> Result<Summary> {
+    let ranks = cfg.processes.ranks;
+    if ranks <= 1 {
+        return run_on(cfg, opts, Arc::new(World::single()));
+    }
+    let mut cfg = cfg.clone();
+    cfg.processes.count = ranks;
+    let results = crate::ranks::run_loopback(ranks, None, |w| {
+        let w = Arc::new(w);
+        let r = run_on(&cfg, opts, w.clone());
+        if let Err(e) = &r {
+            if !matches!(e, Error::Aborted { .. }) {
+                w.abort(e);
+            }
+        }
+        r
+    });
+    first_failure(results)
+}
+
+/// Rank 0's result when every rank succeeded, else the first error in rank order that is not an echo
+/// of another rank's abort (a rank that failed on its own), else the first error.
+pub fn first_failure<R>(results: Vec<Result<R>>) -> Result<R> {
+    let own = results
+        .iter()
+        .position(|r| matches!(r, Err(e) if !matches!(e, Error::Aborted { .. })));
+    let pick = own.or_else(|| results.iter().position(|r| r.is_err())).unwrap_or(0);
+    results.into_iter().nth(pick).expect("a result per rank")
+}
+
+/// Runs a configuration on this rank of `world` (every rank of the world calls this at once).
+pub fn run_on(cfg: &Config, opts: &RunOptions, world: Arc<World>) -> Result<Summary> {
     let scene = scenes::build(cfg)?;
     match cfg.fluid.precision {
-        Precision::F64 => run_t::<f64>(cfg, scene, opts),
-        Precision::F32 => run_t::<f32>(cfg, scene, opts),
+        Precision::F64 => run_t::<f64>(cfg, scene, opts, world),
+        Precision::F32 => run_t::<f32>(cfg, scene, opts, world),
     }
 }
 
-/// The simulation plus what the run recorded over time, as the scenes' observables see it.
+/// The simulation plus what the run recorded over time, as the scenes' observables see it; under
+/// ranks, rank 0's view of the whole state gathered from every rank.
 struct RunView<'a, T: Real> {
     sim: &'a Simulation<T>,
     trajectory: &'a [(f64, Body)],
+    gathered: Option<Gathered>,
+}
+
+/// The whole state rank 0 gathered for the observables.
+struct Gathered {
+    cells: Vec<crate::ranks::views::BlockCells>,
+    bodies: Vec<Body>,
+    forces: Vec<crate::physics::particle_cells::BodyForce>,
 }
 
 impl<T: Real> FluidView for RunView<'_, T> {
     fn visit(&self, f: &mut dyn FnMut([usize; 3], f64, [f64; 3])) {
-        self.sim.visit(f)
+        match &self.gathered {
+            Some(g) => g.cells.iter().for_each(|c| c.visit(f)),
+            None => self.sim.visit(f),
+        }
     }
     fn steps_taken(&self) -> u64 {
         self.sim.step
     }
     fn bodies(&self) -> Vec<Body> {
-        self.sim.bodies()
+        match &self.gathered {
+            Some(g) => g.bodies.clone(),
+            None => self.sim.bodies(),
+        }
     }
     fn hydro_forces(&self) -> Vec<crate::physics::particle_cells::BodyForce> {
-        self.sim.hydro_forces()
+        match &self.gathered {
+            Some(g) => g.forces.clone(),
+            None => self.sim.hydro_forces(),
+        }
     }
     fn trajectory(&self) -> Vec<(f64, Body)> {
         self.trajectory.to_vec()
@@ -296,13 +356,13 @@ struct Plan {
     dir: PathBuf,
     /// VTK interval, if any.
     vtk_every: Option<u64>,
-    /// The effective configuration (effective.toml, every checkpoint).
+    /// The effective configuration as every checkpoint carries it (effective.toml's, with one rank).
     config_text: String,
 }
 
 /// Checks what can be checked before anything is allocated or written (the checkpoint's step, the
-/// memory estimate, the output folders), then writes effective.toml.
-fn plan(cfg: &Config, scene: &Scene, opts: &RunOptions) -> Result<Plan> {
+/// memory estimate, the output folders), then writes effective.toml (rank 0 does the writing).
+fn plan(cfg: &Config, scene: &Scene, opts: &RunOptions, root: bool) -> Result<Plan> {
     let steps = opts.steps.or(cfg.run.steps).unwrap_or(scene.steps);
     let dir = output_dir(cfg, opts);
     if let Some(ck) = &opts.restart {
@@ -315,15 +375,24 @@ fn plan(cfg: &Config, scene: &Scene, opts: &RunOptions) -> Result<Plan> {
         }
     }
     resources::check_memory(cfg, scene)?;
-    ensure_writable(&dir)?;
-    if cfg.run.checkpoint_every.is_some() || cfg.run.checkpoint_wall.is_some() {
-        ensure_writable(&dir.join("checkpoints"))?;
-    }
-    let _ = std::fs::remove_file(dir.join("summary.json"));
-    remove_old_pictures(&dir);
     let vtk_every = opts.vtk_every.or(cfg.run.vtk_every);
+    if root {
+        ensure_writable(&dir)?;
+        if cfg.run.checkpoint_every.is_some() || cfg.run.checkpoint_wall.is_some() {
+            ensure_writable(&dir.join("checkpoints"))?;
+        }
+        let _ = std::fs::remove_file(dir.join("summary.json"));
+        remove_old_pictures(&dir);
+    }
     let config_text = effective_text(cfg, steps, &dir, vtk_every);
-    write_atomic(&dir.join("effective.toml"), config_text.as_bytes())?;
+    if root {
+        write_atomic(&dir.join("effective.toml"), config_text.as_bytes())?;
+    }
+    // A checkpoint is the same bytes whether ranks or virtual processes wrote it: its configuration
+    // names the processes (`processes.count`), not whether they shared memory.
+    let mut placed = cfg.clone();
+    placed.processes.ranks = 1;
+    let config_text = effective_text(&placed, steps, &dir, vtk_every);
     Ok(Plan {
         steps,
         dir,
@@ -346,10 +415,37 @@ fn remove_old_pictures(dir: &Path) {
     }
 }
 
-/// The fields of summary.json known before the first step.
-fn summary_head<T: Real>(tl: &TimeLoop<T>, cfg: &Config, scene: &Scene, opts: &RunOptions, steps: u64) -> Summary {
+/// The fields of summary.json known before the first step (collective under ranks: the PDF bytes and
+/// cores of every rank).
+fn summary_head<T: Real>(
+    tl: &TimeLoop<T>,
+    cfg: &Config,
+    scene: &Scene,
+    opts: &RunOptions,
+    steps: u64,
+) -> Result<Summary> {
     let sim = tl.sim();
-    Summary {
+    let world = tl.world();
+    let mut pdf_bytes = [sim.blocks.iter().map(|b| b.pdf_bytes() as u64).sum::<u64>()];
+    let mut cores = tl.pipeline().executor().cores().to_vec();
+    if !world.is_single() {
+        world.sum(&mut pdf_bytes)?;
+        let mine: Vec<u8> = cores
+            .iter()
+            .flat_map(|c| c.map_or(u64::MAX, |c| c as u64).to_le_bytes())
+            .collect();
+        cores = world
+            .allgather(&mine)?
+            .iter()
+            .flat_map(|r| {
+                r.chunks_exact(8)
+                    .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
+                    .collect::<Vec<_>>()
+            })
+            .map(|c| (c != u64::MAX).then_some(c as usize))
+            .collect();
+    }
+    Ok(Summary {
         scene: scene.name.to_string(),
         description: scene.description.clone(),
         steps_requested: steps,
@@ -362,43 +458,71 @@ fn summary_head<T: Real>(tl: &TimeLoop<T>, cfg: &Config, scene: &Scene, opts: &R
         threads_per_process: cfg.processes.threads_per_process,
         precision: T::NAME.to_string(),
         streaming: cfg.fluid.streaming.name().to_string(),
-        pdf_bytes: sim.blocks.iter().map(|b| b.pdf_bytes() as u64).sum(),
+        ranks: cfg.processes.ranks.max(1),
+        pdf_bytes: pdf_bytes[0],
         memory_estimate_bytes: resources::estimate_memory(cfg, scene).map_or(0, |m| m.total as u64),
         tau: sim.params.tau,
         magic: sim.params.magic,
-        cores: tl.pipeline().executor().cores().to_vec(),
+        cores,
         restarted_from: opts.restart.as_ref().map(|c| c.path.display().to_string()),
         restart_step: opts.restart.as_ref().map(|c| c.step),
         units: scene.units,
         ..Default::default()
+    })
+}
+
+/// The signal that asked this run to stop (under ranks, the one any rank received).
+fn interrupted(world: &World) -> Result<Option<i32>> {
+    let mine = signals::interrupted();
+    if world.is_single() {
+        return Ok(mine);
     }
+    let mut v = [mine.map_or(0, |s| s as u64)];
+    world.or(&mut v)?;
+    Ok((v[0] != 0).then_some(v[0] as i32))
+}
+
+/// The trace file of this rank: `path` itself on rank 0, `<stem>.rank<r>.<ext>` beside it on the others.
+fn trace_path(path: &Path, world: &World) -> PathBuf {
+    if world.is_root() {
+        return path.to_path_buf();
+    }
+    let stem = path
+        .file_stem()
+        .map_or("trace".into(), |s| s.to_string_lossy().to_string());
+    let name = match path.extension() {
+        Some(e) => format!("{stem}.rank{}.{}", world.rank(), e.to_string_lossy()),
+        None => format!("{stem}.rank{}", world.rank()),
+    };
+    path.with_file_name(name)
 }
 
 /// Builds the run, attaches its outputs, steps it to the end (or a signal, or an instability), and
 /// writes what it measured.
-fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summary> {
-    let plan = plan(cfg, &scene, opts)?;
+fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions, world: Arc<World>) -> Result<Summary> {
+    let plan = plan(cfg, &scene, opts, world.is_root())?;
     let (steps, dir) = (plan.steps, &plan.dir);
     let recording = Recording {
         trace: opts.trace.is_some(),
         block_parts: false,
     };
-    let mut tl = TimeLoop::<T>::from_config(cfg, &scene, recording)?;
+    let mut tl = TimeLoop::<T>::on_world(cfg, &scene, recording, world.clone())?;
     if let Some(ck) = &opts.restart {
         ck.restore_into(&mut tl)?;
     }
     let start_step = tl.sim().step;
     let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
-    tl.add_observer(SeriesWriter::new(dir, tl.sim(), series_every, steps)?);
-    let trajectory = TrajectoryRecorder::new(dir, tl.sim(), scene.units).map(|r| tl.add_observer(r));
+    tl.add_observer(SeriesWriter::new(dir, tl.sim(), &world, series_every, steps)?);
+    let trajectory = TrajectoryRecorder::new(dir, tl.sim(), &world, scene.units)?.map(|r| tl.add_observer(r));
     if let Some(every) = plan.vtk_every {
-        let w = VtkWriter::new(dir, tl.sim(), every, cfg.run.vtk_encoding)?;
+        let w = VtkWriter::new(dir, tl.sim(), &world, every, cfg.run.vtk_encoding)?;
         tl.add_observer(w);
     }
     if let Some(every) = cfg.run.png_every {
         let w = SliceWriter::new(
             dir,
             tl.sim(),
+            &world,
             tl.pipeline().owners(),
             cfg,
             every,
@@ -413,15 +537,26 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         plan.config_text,
         scene.name,
     ));
-    tl.add_observer(Progress::new(start_step, steps, opts.progress));
+    tl.add_observer(Progress::new(start_step, steps, opts.progress && world.is_root()));
     tl.add_observer(StopOnSignal);
-    let mut summary = summary_head(&tl, cfg, &scene, opts, steps);
-    let tasks_per_step = tl.tasks_per_step();
-    let outcome = match signals::interrupted() {
+    let mut summary = summary_head(&tl, cfg, &scene, opts, steps)?;
+    let mut tasks_per_step = [tl.tasks_per_step()? as u64];
+    if !world.is_single() {
+        world.sum(&mut tasks_per_step)?;
+    }
+    let outcome = match interrupted(&world)? {
         Some(_) => Ok(Flow::Stop),
         None => tl.run_to(steps),
     };
-    let interrupted = signals::interrupted().filter(|_| matches!(outcome, Ok(Flow::Stop)));
+    if let Err(e @ Error::Aborted { .. }) = outcome {
+        // Another rank failed: nothing can be gathered from it any more.
+        return Err(e);
+    }
+    let interrupted = if matches!(outcome, Ok(Flow::Stop)) {
+        interrupted(&world)?
+    } else {
+        None
+    };
     let failure = outcome.err();
     tl.finish(&match (&failure, interrupted) {
         (Some(e), _) => RunEnd::Failed(e),
@@ -429,13 +564,20 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         (None, None) => RunEnd::Done,
     })?;
     if let Some(path) = &opts.trace {
+        let path = trace_path(path, &world);
         tl.pipeline()
-            .write_trace(path)
-            .map_err(|e| crate::error::io_err(path, e))?;
+            .write_trace(&path)
+            .map_err(|e| crate::error::io_err(&path, e))?;
     }
-    crate::io::intervals::write(&dir.join("intervals.csv"), tl.intervals())?;
-    figures(dir, cfg, tl.intervals(), tl.sim().particles.is_some())?;
-    let loop_time = tl.stepping_seconds();
+    if world.is_root() {
+        crate::io::intervals::write(&dir.join("intervals.csv"), tl.intervals())?;
+        figures(dir, cfg, tl.intervals(), tl.sim().particles.is_some())?;
+    }
+    let mut loop_time = [tl.stepping_seconds()];
+    if !world.is_single() {
+        world.max_f64(&mut loop_time)?;
+    }
+    let loop_time = loop_time[0];
     let done = tl.sim().step - start_step;
     summary.wall_seconds = loop_time;
     summary.mlups = if loop_time > 0.0 {
@@ -450,7 +592,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
         summary.checkpoint_seconds = Some(ck.seconds);
         summary.checkpoint_bytes = Some(ck.bytes);
     }
-    summary::fill(&mut summary, &tl, &cfg.balance, tasks_per_step);
+    summary::fill(&mut summary, &tl, &cfg.balance, tasks_per_step[0] as usize)?;
     let error = match (failure, interrupted) {
         (Some(e), _) => Some(("unstable", e)),
         (None, Some(signal)) => Some((
@@ -466,13 +608,28 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions) -> Result<Summa
     if let Some((status, e)) = error {
         summary.status = status.to_string();
         summary.error = Some(e.to_string());
-        write_summary(dir, &summary)?;
+        if world.is_root() {
+            write_summary(dir, &summary)?;
+        }
         return Err(e);
     }
     let points: &[(f64, Body)] = trajectory.map_or(&[], |h| &tl.observer(h).points);
+    let gathered = if world.is_single() {
+        None
+    } else {
+        let cells = crate::ranks::views::cells(&world, tl.sim())?;
+        let bodies = crate::ranks::views::bodies(&world, tl.sim())?;
+        let forces = crate::ranks::views::hydro_forces(&world, tl.sim())?;
+        match cells {
+            Some(cells) => Some(Gathered { cells, bodies, forces }),
+            // Rank 0 computes the observables and writes the summary.
+            None => return Ok(summary),
+        }
+    };
     summary.observables = (scene.observe)(&RunView {
         sim: tl.sim(),
         trajectory: points,
+        gathered,
     });
     summary.status = "ok".to_string();
     write_summary(dir, &summary)?;

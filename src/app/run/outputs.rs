@@ -8,8 +8,9 @@ use crate::config::Config;
 use crate::error::{io_err, Result};
 use crate::io::series::{ParticleRow, ParticleSeries, Series};
 use crate::io::vtk::{ParticleVtkSeries, VtkEncoding, VtkParticle, VtkPiece, VtkSeries};
-use crate::physics::geometry::flags;
 use crate::physics::simulation::Simulation;
+use crate::ranks::views::{self, BlockCells};
+use crate::ranks::World;
 use crate::scenes::Units;
 use crate::timeloop::{Flow, Observer, RunContext, RunEnd};
 use crate::util::fs::write_atomic;
@@ -34,11 +35,13 @@ fn partial(p: &Path) -> PathBuf {
 }
 
 /// One row of `particles.csv` for the state of `sim` (none without particles).
-fn particle_row<T: Real>(sim: &Simulation<T>) -> Option<ParticleRow> {
-    let p = sim.particles.as_ref()?;
-    let b = p.bodies(sim.step);
-    let (contacts, pen) = p.last_contacts();
-    Some(ParticleRow {
+fn particle_row<T: Real>(world: &World, sim: &Simulation<T>) -> Result<Option<ParticleRow>> {
+    let Some(p) = sim.particles.as_ref() else {
+        return Ok(None);
+    };
+    let b = views::bodies(world, sim)?;
+    let (contacts, pen) = views::last_contacts(world, sim)?;
+    Ok(Some(ParticleRow {
         step: sim.step,
         time: sim.step as f64 * p.dt,
         bodies: b.len(),
@@ -46,39 +49,51 @@ fn particle_row<T: Real>(sim: &Simulation<T>) -> Option<ParticleRow> {
         max_speed: b.iter().map(|x| x.velocity.length()).fold(0.0, f64::max),
         contacts,
         max_penetration: pen,
-    })
+    }))
 }
 
-/// `series.csv` (and `particles.csv` for scenes with bodies): a row at the start, every `every` steps and
-/// at the last step.
-pub struct SeriesWriter {
-    every: u64,
-    end: u64,
-    paths: (PathBuf, PathBuf),
+/// The files of `series.csv` and `particles.csv` (rank 0 only).
+struct SeriesFiles {
     fluid: Series,
     particles: Option<ParticleSeries>,
 }
 
+/// `series.csv` (and `particles.csv` for scenes with bodies): a row at the start, every `every` steps and
+/// at the last step. Under ranks every rank computes the rows (the diagnostics are collectives) and rank
+/// 0 writes them.
+pub struct SeriesWriter {
+    every: u64,
+    end: u64,
+    paths: (PathBuf, PathBuf),
+    files: Option<SeriesFiles>,
+}
+
 impl SeriesWriter {
     /// Creates the files in `dir` with the row of the current state.
-    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, every: u64, end: u64) -> Result<Self> {
+    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, world: &World, every: u64, end: u64) -> Result<Self> {
         let paths = (dir.join("series.csv"), dir.join("particles.csv"));
-        let mut fluid = Series::create(&partial(&paths.0))?;
-        fluid.push(sim.step, &sim.diagnostics())?;
-        let particles = match particle_row(sim) {
-            Some(row) => {
-                let mut ps = ParticleSeries::create(&partial(&paths.1))?;
-                ps.push(&row)?;
-                Some(ps)
-            }
-            None => None,
+        let d = views::diagnostics(world, sim)?;
+        let row = particle_row(world, sim)?;
+        let files = if world.is_root() {
+            let mut fluid = Series::create(&partial(&paths.0))?;
+            fluid.push(sim.step, &d)?;
+            let particles = match row {
+                Some(row) => {
+                    let mut ps = ParticleSeries::create(&partial(&paths.1))?;
+                    ps.push(&row)?;
+                    Some(ps)
+                }
+                None => None,
+            };
+            Some(SeriesFiles { fluid, particles })
+        } else {
+            None
         };
         Ok(SeriesWriter {
             every,
             end,
             paths,
-            fluid,
-            particles,
+            files,
         })
     }
 }
@@ -91,18 +106,25 @@ impl<T: Real> Observer<T> for SeriesWriter {
     fn at_stop(&mut self, cx: &RunContext<'_, T>) -> Result<Flow> {
         let s = cx.sim.step;
         if s.is_multiple_of(self.every) || s == self.end {
-            self.fluid.push(s, &cx.sim.diagnostics())?;
-            if let (Some(ps), Some(row)) = (self.particles.as_mut(), particle_row(cx.sim)) {
-                ps.push(&row)?;
+            let d = views::diagnostics(cx.world, cx.sim)?;
+            let row = particle_row(cx.world, cx.sim)?;
+            if let Some(f) = self.files.as_mut() {
+                f.fluid.push(s, &d)?;
+                if let (Some(ps), Some(row)) = (f.particles.as_mut(), row) {
+                    ps.push(&row)?;
+                }
             }
         }
         Ok(Flow::Continue)
     }
 
     fn finish(&mut self, _cx: &RunContext<'_, T>, _end: &RunEnd<'_>) -> Result<()> {
-        self.fluid.flush()?;
+        let Some(f) = self.files.as_mut() else {
+            return Ok(());
+        };
+        f.fluid.flush()?;
         std::fs::rename(partial(&self.paths.0), &self.paths.0).map_err(|e| io_err(&self.paths.0, e))?;
-        if let Some(ps) = self.particles.as_mut() {
+        if let Some(ps) = f.particles.as_mut() {
             ps.flush()?;
             std::fs::rename(partial(&self.paths.1), &self.paths.1).map_err(|e| io_err(&self.paths.1, e))?;
         }
@@ -129,13 +151,10 @@ impl TrajectoryRecorder {
 
     /// A recorder for the run of `sim` (absent when the scene has no bodies or more than
     /// [`Self::MAX_BODIES`]), with the record of the current state.
-    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, units: Option<Units>) -> Option<Self> {
-        let few = sim
-            .particles
-            .as_ref()
-            .is_some_and(|p| p.bodies(sim.step).len() <= Self::MAX_BODIES);
-        if !few {
-            return None;
+    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, world: &World, units: Option<Units>) -> Result<Option<Self>> {
+        let bodies = views::bodies(world, sim)?;
+        if sim.particles.is_none() || bodies.len() > Self::MAX_BODIES {
+            return Ok(None);
         }
         let mut r = TrajectoryRecorder {
             dir: dir.to_path_buf(),
@@ -144,13 +163,13 @@ impl TrajectoryRecorder {
             text: String::from("step,time,x,y,z,vx,vy,vz,wx,wy,wz,fx,fy,fz\n"),
             si: String::from("step,time_s,x_m,y_m,z_m,vx_m_s,vy_m_s,vz_m_s,fx_n,fy_n,fz_n\n"),
         };
-        r.record(sim);
-        Some(r)
+        r.record(sim, &bodies);
+        Ok(Some(r))
     }
 
-    fn record<T: Real>(&mut self, sim: &Simulation<T>) {
+    fn record<T: Real>(&mut self, sim: &Simulation<T>, bodies: &[Body]) {
         let Some(p) = sim.particles.as_ref() else { return };
-        let Some(b) = p.bodies(sim.step).first().copied() else {
+        let Some(b) = bodies.first().copied() else {
             return;
         };
         let t = sim.step as f64 * p.dt;
@@ -182,11 +201,15 @@ impl TrajectoryRecorder {
 
 impl<T: Real> Observer<T> for TrajectoryRecorder {
     fn at_stop(&mut self, cx: &RunContext<'_, T>) -> Result<Flow> {
-        self.record(cx.sim);
+        let bodies = views::bodies(cx.world, cx.sim)?;
+        self.record(cx.sim, &bodies);
         Ok(Flow::Continue)
     }
 
-    fn finish(&mut self, _cx: &RunContext<'_, T>, _end: &RunEnd<'_>) -> Result<()> {
+    fn finish(&mut self, cx: &RunContext<'_, T>, _end: &RunEnd<'_>) -> Result<()> {
+        if !cx.world.is_root() {
+            return Ok(());
+        }
         write_atomic(&self.dir.join("trajectory.csv"), self.text.as_bytes())?;
         if self.units.is_some() {
             write_atomic(&self.dir.join("trajectory_si.csv"), self.si.as_bytes())?;
@@ -196,7 +219,8 @@ impl<T: Real> Observer<T> for TrajectoryRecorder {
 }
 
 /// VTK output every `every` steps: `fluid.pvd` with one `.vti` per block (density, velocity, flags; cells
-/// covered by a particle flagged as such) and, with bodies, `particles.pvd`.
+/// covered by a particle flagged as such) and, with bodies, `particles.pvd`. Under ranks each rank writes
+/// its own blocks' files and rank 0 the files that list them and the bodies.
 pub struct VtkWriter {
     every: u64,
     fluid: VtkSeries,
@@ -205,70 +229,73 @@ pub struct VtkWriter {
 
 impl VtkWriter {
     /// Creates the series in `dir`, block arrays stored as `encoding`, and writes the current state.
-    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, every: u64, encoding: VtkEncoding) -> Result<Self> {
+    pub fn new<T: Real>(
+        dir: &Path,
+        sim: &Simulation<T>,
+        world: &World,
+        every: u64,
+        encoding: VtkEncoding,
+    ) -> Result<Self> {
         let particles = match &sim.particles {
-            Some(_) => Some(ParticleVtkSeries::new(dir).map_err(|e| io_err(dir, e))?),
-            None => None,
+            Some(_) if world.is_root() => Some(ParticleVtkSeries::new(dir).map_err(|e| io_err(dir, e))?),
+            _ => None,
         };
         let mut w = VtkWriter {
             every,
             fluid: VtkSeries::new(dir, encoding).map_err(|e| io_err(dir, e))?,
             particles,
         };
-        w.write(sim)?;
+        w.write(world, sim)?;
         Ok(w)
     }
 
-    fn write<T: Real>(&mut self, sim: &Simulation<T>) -> Result<()> {
-        let force = sim.params.force;
-        let p = sim.parity();
-        let mut data = Vec::with_capacity(sim.blocks.len());
-        for b in &sim.blocks {
-            let [nx, ny, nz] = b.layout.size;
-            let mut rho = Vec::with_capacity(nx * ny * nz);
-            let mut vel = Vec::with_capacity(nx * ny * nz);
-            let mut fl = Vec::with_capacity(nx * ny * nz);
-            for z in 1..=nz {
-                for y in 1..=ny {
-                    for x in 1..=nx {
-                        let i = b.layout.idx(x, y, z);
-                        let mut f = b.flags[i];
-                        if b.particle_cells()
-                            .is_some_and(|pc| pc.owner.get(i).is_some_and(|&o| o != 0))
-                        {
-                            f = flags::PARTICLE;
-                        }
-                        fl.push(f);
-                        if f & flags::FLUID != 0 {
-                            let (r, u) = crate::physics::fluid::cell_moments(b, p, i, force);
-                            rho.push(1.0 + r);
-                            vel.push(u);
-                        } else {
-                            rho.push(1.0);
-                            vel.push([0.0; 3]);
-                        }
-                    }
-                }
-            }
-            data.push((b.id, b.origin, b.layout.size, rho, vel, fl));
-        }
-        let pieces: Vec<VtkPiece> = data
+    fn write<T: Real>(&mut self, world: &World, sim: &Simulation<T>) -> Result<()> {
+        let cells: Vec<BlockCells> = sim
+            .blocks
             .iter()
-            .map(|(id, o, s, r, v, f)| VtkPiece {
-                block_id: *id,
-                origin: *o,
-                size: *s,
-                density: r,
-                velocity: v,
-                flags: f,
+            .filter(|b| b.is_held())
+            .map(|b| BlockCells::of(sim, b))
+            .collect();
+        let data: Vec<(Vec<f64>, &BlockCells)> = cells
+            .iter()
+            .map(|c| {
+                (
+                    c.delta_rho
+                        .iter()
+                        .zip(&c.flags)
+                        .map(|(r, &f)| if f & 1 != 0 { 1.0 + r } else { 1.0 })
+                        .collect(),
+                    c,
+                )
             })
             .collect();
+        let pieces: Vec<VtkPiece> = data
+            .iter()
+            .map(|(rho, c)| VtkPiece {
+                block_id: c.id,
+                origin: c.origin,
+                size: c.size,
+                density: rho,
+                velocity: &c.velocity,
+                flags: &c.flags,
+            })
+            .collect();
+        let vtk_err = |e: std::io::Error| crate::error::Error::Io(format!("VTK output at step {}: {e}", sim.step));
+        self.fluid.write_blocks(sim.step, &pieces).map_err(vtk_err)?;
+        let bodies = views::bodies(world, sim)?;
+        if !world.is_single() {
+            // Every rank's block files are in place before rank 0 lists them.
+            world.sum(&mut [0])?;
+        }
+        if !world.is_root() {
+            return Ok(());
+        }
+        let ids: Vec<usize> = (0..sim.blocks.len()).collect();
         self.fluid
-            .write_step(sim.step, sim.step as f64, &pieces)
-            .map_err(|e| crate::error::Error::Io(format!("VTK output at step {}: {e}", sim.step)))?;
+            .write_index(sim.step, sim.step as f64, &ids)
+            .map_err(vtk_err)?;
         if let (Some(pv), Some(parts)) = (self.particles.as_mut(), sim.particles.as_ref()) {
-            let list: Vec<VtkParticle> = parts
-                .bodies(sim.step)
+            let list: Vec<VtkParticle> = bodies
                 .iter()
                 .map(|b| VtkParticle {
                     id: b.id,
@@ -294,7 +321,7 @@ impl<T: Real> Observer<T> for VtkWriter {
 
     fn at_stop(&mut self, cx: &RunContext<'_, T>) -> Result<Flow> {
         if cx.sim.step.is_multiple_of(self.every) {
-            self.write(cx.sim)?;
+            self.write(cx.world, cx.sim)?;
         }
         Ok(Flow::Continue)
     }
@@ -348,7 +375,7 @@ impl CheckpointWriter {
             scene: self.scene,
             balance: cx.balancer.map(|b| BalanceState::of(&self.cfg, b)),
         };
-        let w = checkpoint::write(&self.dir, cx.sim, &input, self.kept)?;
+        let w = checkpoint::write_on(&self.dir, cx.sim, &input, self.kept, cx.world, cx.owners)?;
         self.count += 1;
         self.seconds += w.seconds;
         self.bytes = w.bytes;
@@ -376,7 +403,9 @@ impl<T: Real> Observer<T> for CheckpointWriter {
     fn finish(&mut self, cx: &RunContext<'_, T>, end: &RunEnd<'_>) -> Result<()> {
         // Stopped early: a checkpoint of the step reached (unless one was just written).
         if matches!(end, RunEnd::Stopped) && self.last.as_ref().is_none_or(|(s, _)| *s != cx.sim.step) {
-            std::fs::create_dir_all(&self.dir).map_err(|e| io_err(&self.dir, e))?;
+            if cx.world.is_root() {
+                std::fs::create_dir_all(&self.dir).map_err(|e| io_err(&self.dir, e))?;
+            }
             self.save(cx)?;
         }
         Ok(())
@@ -422,15 +451,16 @@ impl<T: Real> Observer<T> for Progress {
     }
 }
 
-/// Stops the run at the next stop of the time loop once SIGINT or SIGTERM arrived.
+/// Stops the run at the next stop of the time loop once SIGINT or SIGTERM arrived (under ranks, once it
+/// arrived at any rank: all stop at the same step).
 pub struct StopOnSignal;
 
 impl<T: Real> Observer<T> for StopOnSignal {
-    fn at_stop(&mut self, _cx: &RunContext<'_, T>) -> Result<Flow> {
-        Ok(if signals::interrupted().is_some() {
-            Flow::Stop
-        } else {
-            Flow::Continue
-        })
+    fn at_stop(&mut self, cx: &RunContext<'_, T>) -> Result<Flow> {
+        let mut stop = [u64::from(signals::interrupted().is_some())];
+        if !cx.world.is_single() {
+            cx.world.or(&mut stop)?;
+        }
+        Ok(if stop[0] != 0 { Flow::Stop } else { Flow::Continue })
     }
 }

@@ -12,15 +12,18 @@ const LISTED_INTERVALS: usize = 12;
 /// imbalance eq. (18) per interval with its medians before and after the first rebalance, the migrated
 /// blocks, each part's share of the task CPU time, the observables, the checksums and the files.
 pub fn recap(s: &Summary, cfg: &Config, dir: &Path) -> String {
+    let layout = if s.ranks > 1 {
+        format!("{} ranks x {} threads", s.ranks, s.threads_per_process)
+    } else {
+        format!("{} x {} threads", s.processes, s.threads_per_process)
+    };
     let mut text = format!(
-        "{}: {} steps, {} fluid cells in {} blocks, {} x {} threads, {:.2} s, {:.1} MLUPS ({}, {} streaming, \
+        "{}: {} steps, {} fluid cells in {} blocks, {layout}, {:.2} s, {:.1} MLUPS ({}, {} streaming, \
          PDFs {:.1} MB)\n",
         s.scene,
         s.steps,
         s.fluid_cells,
         s.blocks,
-        s.processes,
-        s.threads_per_process,
         s.wall_seconds,
         s.mlups,
         s.precision,

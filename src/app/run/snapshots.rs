@@ -7,8 +7,11 @@ use crate::io::animation::Animation;
 use crate::io::plots::slice::{self, Slice, SliceCell};
 use crate::physics::geometry::flags;
 use crate::physics::simulation::Simulation;
+use crate::ranks::views;
+use crate::ranks::World;
 use crate::scenes::Units;
 use crate::timeloop::{Flow, Observer, RunContext, RunEnd};
+use blockflow_kernels::rigid::Body;
 use blockflow_kernels::Real;
 use std::path::{Path, PathBuf};
 
@@ -76,34 +79,33 @@ impl Plane {
     }
 }
 
-/// The plane `plane` of the state of `sim`, blocks outlined by their owners `owners`.
-pub fn slice_of<T: Real>(sim: &Simulation<T>, plane: Plane, owners: &[u32], processes: usize, title: String) -> Slice {
-    let cells = sim.domain.cells();
+/// The cells of block `blk` (held by this process) in `plane`, row by row (v, then u), or `None` when
+/// the plane misses the block.
+fn block_plane<T: Real>(
+    sim: &Simulation<T>,
+    plane: Plane,
+    blk: &crate::physics::block::Block<T>,
+) -> Option<Vec<SliceCell>> {
     let [a, b] = plane.axes();
     let n = plane.normal;
-    let (nu, nv) = (cells[a], cells[b]);
-    let mut out = vec![SliceCell::Outside; nu * nv];
-    let mut blocks = Vec::new();
+    let (o, s) = (blk.origin, blk.layout.size);
+    if plane.at < o[n] || plane.at >= o[n] + s[n] {
+        return None;
+    }
     let parity = sim.parity();
     let force = sim.params.force;
-    for (id, blk) in sim.blocks.iter().enumerate() {
-        let (o, s) = (blk.origin, blk.layout.size);
-        if plane.at < o[n] || plane.at >= o[n] + s[n] {
-            continue;
-        }
-        let owner = owners.get(id).copied().unwrap_or(0);
-        let r = |k: usize| [o[k] as f64, (o[k] + s[k]) as f64];
-        blocks.push(([r(a)[0], r(b)[0], r(a)[1], r(b)[1]], owner));
-        let covered = blk.particle_cells();
-        for j in 0..s[b] {
-            for i in 0..s[a] {
-                let mut local = [0usize; 3];
-                local[n] = plane.at - o[n] + 1;
-                local[a] = i + 1;
-                local[b] = j + 1;
-                let idx = blk.layout.idx(local[0], local[1], local[2]);
-                let f = blk.flags[idx];
-                let c = if covered.is_some_and(|pc| pc.owner.get(idx).is_some_and(|&w| w != 0)) {
+    let covered = blk.particle_cells();
+    let mut out = Vec::with_capacity(s[a] * s[b]);
+    for j in 0..s[b] {
+        for i in 0..s[a] {
+            let mut local = [0usize; 3];
+            local[n] = plane.at - o[n] + 1;
+            local[a] = i + 1;
+            local[b] = j + 1;
+            let idx = blk.layout.idx(local[0], local[1], local[2]);
+            let f = blk.flags[idx];
+            out.push(
+                if covered.is_some_and(|pc| pc.owner.get(idx).is_some_and(|&w| w != 0)) {
                     SliceCell::Particle
                 } else if f & flags::FLUID != 0 {
                     let (_, u) = crate::physics::fluid::cell_moments(blk, parity, idx, force);
@@ -112,15 +114,96 @@ pub fn slice_of<T: Real>(sim: &Simulation<T>, plane: Plane, owners: &[u32], proc
                     SliceCell::Wall
                 } else {
                     SliceCell::Outside
-                };
-                out[(o[b] + j) * nu + o[a] + i] = c;
+                },
+            );
+        }
+    }
+    Some(out)
+}
+
+/// A block's plane cells as bytes (a tag per cell, and the speed of fluid cells); none: empty.
+fn encode_plane(cells: Option<Vec<SliceCell>>) -> Vec<u8> {
+    let mut v = Vec::new();
+    for c in cells.into_iter().flatten() {
+        match c {
+            SliceCell::Fluid(x) => {
+                v.push(0);
+                v.extend_from_slice(&x.to_bits().to_le_bytes());
+            }
+            SliceCell::Particle => v.push(1),
+            SliceCell::Wall => v.push(2),
+            SliceCell::Outside => v.push(3),
+        }
+    }
+    v
+}
+
+/// The cells of [`encode_plane`] (`None` for a block the plane misses).
+fn decode_plane(b: &[u8]) -> Option<Vec<SliceCell>> {
+    if b.is_empty() {
+        return None;
+    }
+    let mut out = Vec::new();
+    let mut at = 0;
+    while at < b.len() {
+        let tag = b[at];
+        at += 1;
+        out.push(match tag {
+            0 => {
+                let x = f64::from_bits(u64::from_le_bytes(b[at..at + 8].try_into().expect("8 bytes")));
+                at += 8;
+                SliceCell::Fluid(x)
+            }
+            1 => SliceCell::Particle,
+            2 => SliceCell::Wall,
+            _ => SliceCell::Outside,
+        });
+    }
+    Some(out)
+}
+
+/// The plane `plane` of the state of `sim`, blocks outlined by their owners `owners` (every block held
+/// by this process).
+pub fn slice_of<T: Real>(sim: &Simulation<T>, plane: Plane, owners: &[u32], processes: usize, title: String) -> Slice {
+    let cells: Vec<Option<Vec<SliceCell>>> = sim.blocks.iter().map(|b| block_plane(sim, plane, b)).collect();
+    let bodies = sim.particles.as_ref().map(|p| p.bodies(sim.step));
+    assemble(sim, plane, &cells, owners, bodies.as_deref(), processes, title)
+}
+
+/// The plane from every block's plane cells (block-id order) and the bodies (`None`: no particles).
+fn assemble<T: Real>(
+    sim: &Simulation<T>,
+    plane: Plane,
+    per_block: &[Option<Vec<SliceCell>>],
+    owners: &[u32],
+    bodies: Option<&[Body]>,
+    processes: usize,
+    title: String,
+) -> Slice {
+    let cells = sim.domain.cells();
+    let [a, b] = plane.axes();
+    let n = plane.normal;
+    let (nu, nv) = (cells[a], cells[b]);
+    let mut out = vec![SliceCell::Outside; nu * nv];
+    let mut blocks = Vec::new();
+    for (id, blk) in sim.blocks.iter().enumerate() {
+        let Some(plane_cells) = &per_block[id] else {
+            continue;
+        };
+        let (o, s) = (blk.origin, blk.layout.size);
+        let owner = owners.get(id).copied().unwrap_or(0);
+        let r = |k: usize| [o[k] as f64, (o[k] + s[k]) as f64];
+        blocks.push(([r(a)[0], r(b)[0], r(a)[1], r(b)[1]], owner));
+        for j in 0..s[b] {
+            for i in 0..s[a] {
+                out[(o[b] + j) * nu + o[a] + i] = plane_cells[j * s[a] + i];
             }
         }
     }
     let mut circles = Vec::new();
-    if let Some(p) = &sim.particles {
+    if let Some(bodies) = bodies {
         let centre = plane.at as f64 + 0.5;
-        for body in p.bodies(sim.step) {
+        for body in bodies {
             let x = body.position.to_array();
             let mut d = x[n] - centre;
             if sim.domain.periodic[n] {
@@ -179,14 +262,19 @@ pub struct SliceWriter {
     pub count: usize,
     /// The last picture written.
     pub last: Option<PathBuf>,
+    /// The step of the last picture drawn (by rank 0; every rank keeps it, so all draw at the same
+    /// stops).
+    drawn: Option<u64>,
 }
 
 impl SliceWriter {
     /// A writer for the run of `sim` into `dir/slices/` (created now); draws the current state, the
     /// blocks outlined by their owners `owners`.
+    #[allow(clippy::too_many_arguments)] // the run's folder, state, assignment, settings and scene
     pub fn new<T: Real>(
         dir: &Path,
         sim: &Simulation<T>,
+        world: &World,
         owners: &[u32],
         cfg: &Config,
         every: u64,
@@ -194,7 +282,9 @@ impl SliceWriter {
         units: Option<Units>,
     ) -> Result<Self> {
         let slices = dir.join("slices");
-        std::fs::create_dir_all(&slices).map_err(|e| io_err(&slices, e))?;
+        if world.is_root() {
+            std::fs::create_dir_all(&slices).map_err(|e| io_err(&slices, e))?;
+        }
         let mut w = SliceWriter {
             every,
             plane: Plane::of(cfg, sim.domain.cells())?,
@@ -206,8 +296,9 @@ impl SliceWriter {
             animation: None,
             count: 0,
             last: None,
+            drawn: None,
         };
-        w.draw(sim, owners)?;
+        w.draw(world, sim, owners)?;
         Ok(w)
     }
 
@@ -223,9 +314,35 @@ impl SliceWriter {
         )
     }
 
-    fn draw<T: Real>(&mut self, sim: &Simulation<T>, owners: &[u32]) -> Result<()> {
+    /// Draws the current state (under ranks: the plane's cells of every rank's blocks and the bodies
+    /// gathered, drawn by rank 0).
+    fn draw<T: Real>(&mut self, world: &World, sim: &Simulation<T>, owners: &[u32]) -> Result<()> {
         let step = sim.step;
-        let s = slice_of(sim, self.plane, owners, self.processes, self.title(step));
+        self.drawn = Some(step);
+        let s = if world.is_single() {
+            slice_of(sim, self.plane, owners, self.processes, self.title(step))
+        } else {
+            let held = sim.blocks.iter().filter(|b| b.is_held());
+            let mine = held
+                .map(|b| (b.id, encode_plane(block_plane(sim, self.plane, b))))
+                .collect();
+            let planes = world.gather_blocks(sim.blocks.len(), mine)?;
+            let bodies = views::bodies(world, sim)?;
+            let Some(planes) = planes else {
+                return Ok(());
+            };
+            let cells: Vec<Option<Vec<SliceCell>>> = planes.iter().map(|b| decode_plane(b)).collect();
+            let bodies = sim.particles.as_ref().map(|_| bodies.as_slice());
+            assemble(
+                sim,
+                self.plane,
+                &cells,
+                owners,
+                bodies,
+                self.processes,
+                self.title(step),
+            )
+        };
         let (rgb, size) = slice::render(&s)?;
         let path = self.dir.join("slices").join(format!("step-{step:08}.png"));
         slice::write_png(&path, &rgb, size)?;
@@ -245,8 +362,8 @@ impl<T: Real> Observer<T> for SliceWriter {
     }
 
     fn at_stop(&mut self, cx: &RunContext<'_, T>) -> Result<Flow> {
-        if cx.sim.step.is_multiple_of(self.every) && self.last_step() != Some(cx.sim.step) {
-            self.draw(cx.sim, cx.owners)?;
+        if cx.sim.step.is_multiple_of(self.every) && self.drawn != Some(cx.sim.step) {
+            self.draw(cx.world, cx.sim, cx.owners)?;
         }
         Ok(Flow::Continue)
     }
@@ -256,14 +373,6 @@ impl<T: Real> Observer<T> for SliceWriter {
             a.finish(2)?;
         }
         Ok(())
-    }
-}
-
-impl SliceWriter {
-    /// The step of the last picture, from its file name.
-    fn last_step(&self) -> Option<u64> {
-        let name = self.last.as_ref()?.file_stem()?.to_str()?;
-        name.strip_prefix("step-")?.parse().ok()
     }
 }
 

@@ -1,21 +1,27 @@
 //! `summary.json` of a finished run, from the time loop's state, totals and intervals.
 
 use crate::config::BalanceConfig;
+use crate::error::Result;
 use crate::io::summary::{BalanceSummary, Checksums, ParticleSummary, PartsSeconds, Summary, WorkSummary};
 use crate::physics::parts::Part;
 use crate::physics::simulation::Simulation;
 use crate::pipeline::kinds::TaskKind;
 use crate::pipeline::SkipRule;
+use crate::pipeline::Totals;
+use crate::ranks::views;
 use crate::timeloop::TimeLoop;
 use crate::util::stats::median;
 use blockflow_kernels::Real;
 
 /// Fills the fields of `s` that the run's end state, totals and intervals give: steps, parts, task
 /// counts, particles, balance, work and checksums (the caller sets timing, status and observables).
-pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tasks_per_step: usize) {
+/// Under ranks every rank calls it (the totals and checksums are added over the ranks).
+pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tasks_per_step: usize) -> Result<()> {
     let sim = tl.sim();
     let pipe = tl.pipeline();
-    let t = pipe.totals();
+    let world = tl.world();
+    let totals = pipe.totals().summed(world)?;
+    let t = &totals;
     s.steps = sim.step;
     s.no_skip = pipe.settings().no_skip;
     s.tasks_by_kind = TaskKind::ALL
@@ -31,7 +37,7 @@ pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tas
     let rules = || SkipRule::ALL.iter().map(|r| r.name().to_string());
     s.unskipped_by_rule = s.no_skip.then(|| rules().zip(t.unskipped).collect());
     s.unskipped_cpu_seconds_by_rule = s.no_skip.then(|| rules().zip(t.unskipped_cpu).collect());
-    let coupled = sim.blocks.iter().any(|b| b.particle_cells().is_some());
+    let coupled = sim.particles.is_some() && sim.fluid_cells() > 0;
     let p = &t.part_cpu;
     s.parts_seconds = PartsSeconds {
         lbm: p[Part::Lbm],
@@ -41,8 +47,9 @@ pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tas
         map: coupled.then_some(p[Part::Map]),
         reconstruct: coupled.then_some(p[Part::Reconstruct]),
     };
+    let bodies = views::bodies(world, sim)?.len();
     s.particles = sim.particles.as_ref().map(|p| ParticleSummary {
-        bodies: p.bodies(sim.step).len(),
+        bodies,
         subcycles: p.subcycles,
         rounds: p.rounds,
         substeps: p.counters.substeps,
@@ -50,20 +57,26 @@ pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tas
         max_penetration: p.counters.max_penetration,
         active_blocks: p.active.iter().filter(|&&a| a).count(),
     });
-    s.balance = Some(balance(tl, cfg, tasks_per_step));
+    s.balance = Some(balance(tl, t, cfg, tasks_per_step));
     s.work = work(sim);
+    let (fluid, particles) = views::checksums(world, sim)?;
     s.checksum = Checksums {
-        fluid: format!("{:016x}", sim.checksum()),
-        particles: sim.particles.as_ref().map(|p| format!("{:016x}", p.checksum(sim.step))),
+        fluid: format!("{fluid:016x}"),
+        particles: particles.map(|p| format!("{p:016x}")),
     };
+    Ok(())
 }
 
 /// The `balance` record: strategy, per-interval imbalance, modeled times, migration, messages.
-fn balance<T: Real>(tl: &TimeLoop<T>, cfg_balance: &BalanceConfig, tasks_per_step: usize) -> BalanceSummary {
+fn balance<T: Real>(
+    tl: &TimeLoop<T>,
+    t: &Totals,
+    cfg_balance: &BalanceConfig,
+    tasks_per_step: usize,
+) -> BalanceSummary {
     let pipe = tl.pipeline();
-    let t = pipe.totals();
     let owners = pipe.owners();
-    let procs = pipe.executor().processes();
+    let procs = pipe.processes();
     let iv = tl.intervals();
     let imbalance: Vec<f64> = iv.iter().map(|i| i.imbalance).collect();
     BalanceSummary {
