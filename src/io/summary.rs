@@ -111,6 +111,15 @@ pub struct BalanceSummary {
     pub tasks_per_step: usize,
 }
 
+/// Messages of one kind between ranks.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct RankMessages {
+    /// Messages sent.
+    pub messages: u64,
+    /// Their bytes, headers included.
+    pub bytes: u64,
+}
+
 /// The whole summary.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Summary {
@@ -192,6 +201,14 @@ pub struct Summary {
     pub work: WorkSummary,
     /// Whether the run ran every task on every block (`run.no_skip`, measurement only).
     pub no_skip: bool,
+    /// Under ranks: the messages between ranks over the run by what they carry (`send`: ghost regions,
+    /// `rb_sync` and `forces`: published bodies, `rb`: velocity changes, `boundary` and `map`: body
+    /// forces, `halo`: the neighbours' particle state before each graph run, `migrate`: moved blocks).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rank_messages: Option<BTreeMap<String, RankMessages>>,
+    /// Under ranks: bytes of those messages from each rank (row) to each rank (column).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rank_pair_bytes: Option<Vec<Vec<u64>>>,
     /// Tasks executed over the run, per kind (`send`, `comm`, `boundary`, `sweep`, `map`, ...).
     pub tasks_by_kind: BTreeMap<String, u64>,
     /// With `run.no_skip`: the work done only because the skip rules were off, per rule (`outside`,

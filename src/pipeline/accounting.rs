@@ -11,6 +11,7 @@ use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
 use blockflow_kernels::Real;
 use blockflow_scheduler::{TaskGraph, TaskRecord};
+use std::collections::BTreeMap;
 
 /// Totals over a run.
 #[derive(Clone, Debug, Default)]
@@ -37,9 +38,28 @@ pub struct Totals {
     /// With `run.no_skip`: CPU seconds of the work counted in `unskipped`, per rule (for `fused_kernel`
     /// the whole general-path sweeps of the fluid blocks, to be compared with the fused sweeps' time).
     pub unskipped_cpu: ByRule<f64>,
+    /// Under ranks: the messages sent to other ranks, by what they carry — the kind of the task that
+    /// sent them (`send`: ghost regions; `rb_sync`, `forces`: published bodies; `rb`: velocity changes;
+    /// `boundary`, `map`: body forces), `halo` for the copies of the neighbours' particle state before
+    /// each graph run, `migrate` for moved blocks — as (messages, bytes with their headers).
+    pub rank_messages: BTreeMap<String, (u64, u64)>,
+    /// Under ranks: the bytes of those messages by destination rank (this rank's row; after
+    /// [`Totals::summed`], one row per sending rank).
+    pub rank_bytes: Vec<Vec<u64>>,
 }
 
 impl Totals {
+    /// Counts one message of `bytes` bytes that this rank sent to rank `to` (of `ranks`), carrying `what`.
+    pub fn count_message(&mut self, what: &str, to: usize, ranks: usize, bytes: usize) {
+        let e = self.rank_messages.entry(what.to_string()).or_default();
+        e.0 += 1;
+        e.1 += bytes as u64;
+        if self.rank_bytes.is_empty() {
+            self.rank_bytes = vec![vec![0; ranks]];
+        }
+        self.rank_bytes[0][to] += bytes as u64;
+    }
+
     /// The totals of every rank of `world` added up (rank order), on every rank.
     pub fn summed(&self, world: &crate::ranks::World) -> crate::error::Result<Totals> {
         if world.is_single() {
@@ -79,6 +99,17 @@ impl Totals {
             let (k, rest) = rest.split_at(out.cpu_by_kind.len());
             out.cpu_by_kind.iter_mut().zip(k).for_each(|(a, b)| *a += b);
             out.unskipped_cpu.iter_mut().zip(rest).for_each(|(a, b)| *a += b);
+        }
+        let mine = serde_json::to_vec(&(&self.rank_messages, self.rank_bytes.first())).expect("serialises");
+        for r in world.allgather(&mine)? {
+            let (m, row): (BTreeMap<String, (u64, u64)>, Option<Vec<u64>>) =
+                serde_json::from_slice(&r).expect("counts from a rank of this run");
+            for (k, (n, b)) in m {
+                let e = out.rank_messages.entry(k).or_default();
+                e.0 += n;
+                e.1 += b;
+            }
+            out.rank_bytes.push(row.unwrap_or_else(|| vec![0; world.ranks()]));
         }
         Ok(out)
     }

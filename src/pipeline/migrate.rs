@@ -70,7 +70,7 @@ impl<T: Real> Pipeline<T> {
 
     /// Moves blocks between ranks: the old owner encodes and sends each block it gives up, then releases
     /// it; the new owner receives, holds and decodes it (on its worker, which first-touches the fields).
-    fn migrate_ranks(&self, sim: &mut Simulation<T>, owners: &[u32], moved: &[usize]) -> Result<u64> {
+    fn migrate_ranks(&mut self, sim: &mut Simulation<T>, owners: &[u32], moved: &[usize]) -> Result<u64> {
         let world = self.world.clone();
         let me = world.rank() as u32;
         let t = world.transport();

@@ -469,7 +469,9 @@ impl<T: Real> Pipeline<T> {
         let world = self.world.clone();
         let nb = sim.blocks.len();
         self.agree(sim, k)?;
-        ranked::halo(sim, &self.owners, &world)?;
+        for (to, bytes) in ranked::halo(sim, &self.owners, &world)? {
+            self.totals.count_message("halo", to as usize, world.ranks(), bytes);
+        }
         let base = sim.step;
         let bad = self.run_graph(sim, k)?;
         // The first failure over all ranks by (step, block) and (phase, block), the particle statistics.
@@ -565,6 +567,7 @@ impl<T: Real> Pipeline<T> {
                     outbox: &state.outbox,
                     base,
                     error: None,
+                    sent: Vec::new(),
                 };
                 let run = self.exec.run_with_progress(
                     &compiled.graph,
@@ -582,6 +585,9 @@ impl<T: Real> Pipeline<T> {
                     },
                     |rel| driver.progress(rel),
                 );
+                for &(to, kind, bytes) in &driver.sent {
+                    self.totals.count_message(kind.name(), to as usize, self.world.ranks(), bytes);
+                }
                 (run, driver.error)
             }
             _ => {

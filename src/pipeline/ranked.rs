@@ -302,6 +302,8 @@ pub(super) struct Driver<'a, T: Real> {
     pub(super) base: u64,
     /// A failure met while driving (a message that does not fit, another rank's abort).
     pub(super) error: Option<Error>,
+    /// The messages sent: (destination rank, kind of the task that sent it, bytes).
+    pub(super) sent: Vec<(u32, TaskKind, usize)>,
 }
 
 impl<T: Real> Driver<'_, T> {
@@ -322,6 +324,8 @@ impl<T: Real> Driver<'_, T> {
         let queued = std::mem::take(&mut *self.outbox.lock().expect("outbox"));
         let mut did = !queued.is_empty();
         for (to, bytes) in queued {
+            let kind = TaskKind::ALL[bytes[0] as usize];
+            self.sent.push((to, kind, bytes.len()));
             t.send(to as usize, Tag::new(class::GRAPH, 0), bytes)
                 .map_err(|e| self.world.error(e))?;
         }
@@ -409,10 +413,12 @@ pub(super) fn halo_blocks(parts: &Particles, owners: &[u32], me: u32) -> Vec<usi
 
 /// Sends the particle state of every block of this rank to the ranks that own one of its neighbours
 /// (published list of the current parity, velocity changes, body forces) and puts the copies other ranks
-/// send into place (see the module docs). Call between graph runs, on every rank at once.
-pub(super) fn halo<T: Real>(sim: &Simulation<T>, owners: &[u32], world: &World) -> Result<()> {
+/// send into place (see the module docs). Call between graph runs, on every rank at once. Returns the
+/// messages sent as (destination rank, bytes).
+pub(super) fn halo<T: Real>(sim: &Simulation<T>, owners: &[u32], world: &World) -> Result<Vec<(u32, usize)>> {
+    let mut sent = Vec::new();
     let Some(parts) = sim.particles.as_ref() else {
-        return Ok(());
+        return Ok(sent);
     };
     let me = world.rank() as u32;
     let t = world.transport();
@@ -438,6 +444,7 @@ pub(super) fn halo<T: Real>(sim: &Simulation<T>, owners: &[u32], world: &World) 
         }
         encode_forces(sim.blocks[b].body_forces(), &mut bytes);
         for d in dests {
+            sent.push((d, bytes.len()));
             t.send(d as usize, tag, bytes.clone()).map_err(|e| world.error(e))?;
         }
     }
@@ -471,5 +478,5 @@ pub(super) fn halo<T: Real>(sim: &Simulation<T>, owners: &[u32], world: &World) 
         }
         got += 1;
     }
-    Ok(())
+    Ok(sent)
 }

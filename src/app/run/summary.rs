@@ -2,7 +2,7 @@
 
 use crate::config::BalanceConfig;
 use crate::error::Result;
-use crate::io::summary::{BalanceSummary, Checksums, ParticleSummary, PartsSeconds, Summary, WorkSummary};
+use crate::io::summary::{RankMessages, BalanceSummary, Checksums, ParticleSummary, PartsSeconds, Summary, WorkSummary};
 use crate::physics::parts::Part;
 use crate::physics::simulation::Simulation;
 use crate::pipeline::kinds::TaskKind;
@@ -34,6 +34,15 @@ pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tas
         .filter(|k| t.tasks_by_kind[k.index()] > 0)
         .map(|k| (k.name().to_string(), t.cpu_by_kind[k.index()]))
         .collect();
+    if !world.is_single() {
+        s.rank_messages = Some(
+            t.rank_messages
+                .iter()
+                .map(|(k, &(messages, bytes))| (k.clone(), RankMessages { messages, bytes }))
+                .collect(),
+        );
+        s.rank_pair_bytes = Some(t.rank_bytes.clone());
+    }
     let rules = || SkipRule::ALL.iter().map(|r| r.name().to_string());
     s.unskipped_by_rule = s.no_skip.then(|| rules().zip(t.unskipped).collect());
     s.unskipped_cpu_seconds_by_rule = s.no_skip.then(|| rules().zip(t.unskipped_cpu).collect());
