@@ -78,11 +78,19 @@ pub fn pack_bytes<T: Real>(sender: &Block<T>, p: usize, off: [i32; 3], dirs: &[u
         for z in rz.clone() {
             for y in ry.clone() {
                 let i = sl.at(q, l.idx(*rx.start(), y, z));
-                for x in 0..=(rx.end() - rx.start()) {
-                    // SAFETY: populations of the sender's interior cells; no task writes them
-                    // concurrently (graph).
-                    let v = unsafe { *f.add(i + x) };
-                    out.extend_from_slice(&v.bits().to_le_bytes()[..T::BYTES]);
+                let n = rx.end() - rx.start() + 1;
+                // SAFETY: populations of the sender's interior cells; no task writes them concurrently
+                // (graph).
+                let row = unsafe { std::slice::from_raw_parts(f.add(i), n) };
+                if cfg!(target_endian = "little") {
+                    // SAFETY: the row's values as their bytes (little endian in memory already).
+                    out.extend_from_slice(unsafe {
+                        std::slice::from_raw_parts(row.as_ptr() as *const u8, n * T::BYTES)
+                    });
+                } else {
+                    for v in row {
+                        out.extend_from_slice(&v.bits().to_le_bytes()[..T::BYTES]);
+                    }
                 }
             }
         }
@@ -101,19 +109,25 @@ pub fn unpack_bytes<T: Real>(receiver: &Block<T>, p: usize, off: [i32; 3], dirs:
     let f = receiver.field(p).raw();
     let sl = receiver.slots(p);
     let [rx, ry, rz] = ghost_ranges(&l, off);
-    let mut values = bytes.chunks_exact(T::BYTES).map(|c| {
-        let mut b = [0u8; 8];
-        b[..T::BYTES].copy_from_slice(c);
-        T::from_bits(u64::from_le_bytes(b))
-    });
+    let n = rx.end() - rx.start() + 1;
+    let mut rows = bytes.chunks_exact(n * T::BYTES);
     for &q in dirs {
         for z in rz.clone() {
             for y in ry.clone() {
                 let i = sl.at(q, l.idx(*rx.start(), y, z));
-                for x in 0..=(rx.end() - rx.start()) {
-                    let v = values.next().expect("length checked above");
-                    // SAFETY: populations of the receiver's ghost cells, written only by this task (graph).
-                    unsafe { *f.add(i + x) = v };
+                let row = rows.next().expect("length checked above");
+                if cfg!(target_endian = "little") {
+                    // SAFETY: populations of the receiver's ghost cells, written only by this task
+                    // (graph); the bytes are the values' little-endian bits, copied whatever their
+                    // alignment.
+                    unsafe { std::ptr::copy_nonoverlapping(row.as_ptr(), f.add(i) as *mut u8, n * T::BYTES) };
+                } else {
+                    for (x, c) in row.chunks_exact(T::BYTES).enumerate() {
+                        let mut b = [0u8; 8];
+                        b[..T::BYTES].copy_from_slice(c);
+                        // SAFETY: as above.
+                        unsafe { *f.add(i + x) = T::from_bits(u64::from_le_bytes(b)) };
+                    }
                 }
             }
         }

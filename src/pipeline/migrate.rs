@@ -109,6 +109,10 @@ impl<T: Real> Pipeline<T> {
             // SAFETY: no task runs; the block's bytes went out above.
             unsafe { sim.blocks[b].release() };
         }
+        for b in sim.blocks.iter().filter(|b| owners[b.id] != me) {
+            // SAFETY: no task runs. Copies of other ranks' blocks are refilled before the next graph run.
+            unsafe { b.set_remote_forces(Vec::new()) };
+        }
         if let Some(parts) = sim.particles.as_mut() {
             let held = (0..owners.len()).map(|b| owners[b] == me).collect();
             // SAFETY: no task runs.

@@ -558,6 +558,7 @@ impl<T: Real> Pipeline<T> {
         let (run, failure) = match (&self.ranks, &compiled.messages) {
             (Some(state), Some(messages)) => {
                 let driver_thread = std::thread::current();
+                let sent: ranked::SentLog = Mutex::new(Vec::new());
                 self.world.transport().set_waker(driver_thread.clone());
                 let mut driver = Driver {
                     sim,
@@ -567,7 +568,7 @@ impl<T: Real> Pipeline<T> {
                     outbox: &state.outbox,
                     base,
                     error: None,
-                    sent: Vec::new(),
+                    sent: &sent,
                 };
                 let run = self.exec.run_with_progress(
                     &compiled.graph,
@@ -578,17 +579,21 @@ impl<T: Real> Pipeline<T> {
                             dispatch.run(spec);
                             let dests = &messages.post[t as usize];
                             if !dests.is_empty() {
-                                ranked::post(sim, &state.ghosts, dests, spec, base, &state.outbox);
-                                driver_thread.unpark();
+                                let log = (&*self.world, &sent);
+                                if ranked::post(sim, &state.ghosts, dests, spec, base, &state.outbox, log) {
+                                    driver_thread.unpark();
+                                }
                             }
                         }
                     },
                     |rel| driver.progress(rel),
                 );
-                for &(to, kind, bytes) in &driver.sent {
-                    self.totals.count_message(kind.name(), to as usize, self.world.ranks(), bytes);
+                let error = driver.error;
+                for &(to, kind, bytes) in sent.lock().expect("sent log").iter() {
+                    self.totals
+                        .count_message(kind.name(), to as usize, self.world.ranks(), bytes);
                 }
-                (run, driver.error)
+                (run, error)
             }
             _ => {
                 // SAFETY: the graph carries the edges of the module docs (and those of the particle and

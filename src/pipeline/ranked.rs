@@ -240,7 +240,10 @@ impl RankGhosts {
 /// What a rank's tasks queue for the driver to send: (destination rank, bytes).
 pub(super) type Outbox = Mutex<Vec<(u32, Vec<u8>)>>;
 
-/// The messages of one finished local task (see the module table), queued in `outbox`.
+/// The messages of one finished local task (see the module table): sent at once when the transport lets
+/// any thread send, else (or when the send fails) queued in `outbox` for the driver; each sent one is
+/// logged in `log`. Returns whether the outbox was empty before something was queued (then the driver
+/// may be parked and should be woken).
 ///
 /// # Safety
 /// Called by the task that just ran `spec`, before its successors start: it reads what that task wrote.
@@ -251,9 +254,10 @@ pub(super) unsafe fn post<T: Real>(
     spec: &TaskSpec,
     base: u64,
     outbox: &Outbox,
-) {
+    (world, log): (&World, &SentLog),
+) -> bool {
     if dests.is_empty() {
-        return;
+        return false;
     }
     let producer = Producer::of(spec);
     let b = spec.block as usize;
@@ -287,8 +291,29 @@ pub(super) unsafe fn post<T: Real>(
             out.push((d, bytes.clone()));
         }
     }
-    outbox.lock().expect("outbox").extend(out);
+    if world.transport().sends_from_any_thread() {
+        let t = world.transport();
+        let mut left = Vec::new();
+        for (to, bytes) in out {
+            let n = bytes.len();
+            match t.send(to as usize, Tag::new(class::GRAPH, 0), bytes.clone()) {
+                Ok(()) => log.lock().expect("sent log").push((to, producer.kind, n)),
+                Err(_) => left.push((to, bytes)),
+            }
+        }
+        out = left;
+        if out.is_empty() {
+            return false;
+        }
+    }
+    let mut queue = outbox.lock().expect("outbox");
+    let was_empty = queue.is_empty();
+    queue.extend(out);
+    was_empty
 }
+
+/// The messages a rank sent in a graph run: (destination rank, kind of the task that sent it, bytes).
+pub(super) type SentLog = Mutex<Vec<(u32, TaskKind, usize)>>;
 
 /// The driver's side of a graph run on ranks: sends what the tasks queued, receives the messages of
 /// other ranks, puts them in place and releases the tasks waiting for them.
@@ -302,8 +327,8 @@ pub(super) struct Driver<'a, T: Real> {
     pub(super) base: u64,
     /// A failure met while driving (a message that does not fit, another rank's abort).
     pub(super) error: Option<Error>,
-    /// The messages sent: (destination rank, kind of the task that sent it, bytes).
-    pub(super) sent: Vec<(u32, TaskKind, usize)>,
+    /// The messages sent.
+    pub(super) sent: &'a SentLog,
 }
 
 impl<T: Real> Driver<'_, T> {
@@ -325,7 +350,7 @@ impl<T: Real> Driver<'_, T> {
         let mut did = !queued.is_empty();
         for (to, bytes) in queued {
             let kind = TaskKind::ALL[bytes[0] as usize];
-            self.sent.push((to, kind, bytes.len()));
+            self.sent.lock().expect("sent log").push((to, kind, bytes.len()));
             t.send(to as usize, Tag::new(class::GRAPH, 0), bytes)
                 .map_err(|e| self.world.error(e))?;
         }

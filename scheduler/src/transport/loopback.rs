@@ -31,6 +31,8 @@ struct InFlight {
 struct Mailbox {
     /// Received, per (sender, tag), oldest first.
     arrived: HashMap<(Rank, Tag), VecDeque<Vec<u8>>>,
+    /// Messages in `arrived`.
+    waiting: usize,
     /// Not yet due (with delays only).
     in_flight: Vec<InFlight>,
     /// The due time of the last message per (sender, tag), so a later one is never due earlier.
@@ -215,9 +217,15 @@ impl Transport for Loopback {
         match &self.group.delays {
             None => {
                 m.arrived.entry((self.rank, tag)).or_default().push_back(bytes);
+                m.waiting += 1;
+                let first = m.waiting == 1;
                 drop(m);
-                if let Some(t) = self.group.wakers[to].lock().expect("waker").as_ref() {
-                    t.unpark();
+                // The receiver's driver looks at every message it finds once woken: wake it for the
+                // first one only.
+                if first {
+                    if let Some(t) = self.group.wakers[to].lock().expect("waker").as_ref() {
+                        t.unpark();
+                    }
                 }
             }
             Some(d) => {
@@ -242,7 +250,9 @@ impl Transport for Loopback {
         self.check()?;
         self.check_rank(from)?;
         let mut m = self.group.mailboxes[self.rank].lock().expect("mailbox");
-        Ok(m.arrived.get_mut(&(from, tag)).and_then(|q| q.pop_front()))
+        let got = m.arrived.get_mut(&(from, tag)).and_then(|q| q.pop_front());
+        m.waiting -= usize::from(got.is_some());
+        Ok(got)
     }
 
     fn try_recv_any(&self, class: u8) -> Result<Option<(Rank, Tag, Vec<u8>)>, TransportError> {
@@ -254,14 +264,20 @@ impl Transport for Loopback {
             .filter(|(k, q)| k.1.class == class && !q.is_empty())
             .map(|(k, _)| *k)
             .min();
-        Ok(key.and_then(|k| {
+        let got = key.and_then(|k| {
             let q = m.arrived.get_mut(&k).expect("key found above");
             let bytes = q.pop_front()?;
             if q.is_empty() {
                 m.arrived.remove(&k);
             }
             Some((k.0, k.1, bytes))
-        }))
+        });
+        m.waiting -= usize::from(got.is_some());
+        Ok(got)
+    }
+
+    fn sends_from_any_thread(&self) -> bool {
+        true
     }
 
     fn set_waker(&self, driver: std::thread::Thread) {
@@ -290,6 +306,7 @@ impl Transport for Loopback {
         let n = due.len();
         for x in due {
             m.arrived.entry((x.from, x.tag)).or_default().push_back(x.bytes);
+            m.waiting += 1;
         }
         Ok(n)
     }

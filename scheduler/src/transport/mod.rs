@@ -139,6 +139,13 @@ pub trait Transport: Send + Sync {
     /// its next poll.
     fn set_waker(&self, _driver: std::thread::Thread) {}
 
+    /// Whether any thread of the rank may call [`Transport::send`] (else only the rank's driver: MPI
+    /// initialised for funnelled threads). A rank whose worker threads may send skips the hop through
+    /// its driver.
+    fn sends_from_any_thread(&self) -> bool {
+        false
+    }
+
     /// Waits for the oldest message from `from` under `tag` (polling) and takes it.
     fn recv(&self, from: Rank, tag: Tag) -> Result<Vec<u8>, TransportError> {
         loop {

@@ -2,7 +2,9 @@
 
 use crate::config::BalanceConfig;
 use crate::error::Result;
-use crate::io::summary::{RankMessages, BalanceSummary, Checksums, ParticleSummary, PartsSeconds, Summary, WorkSummary};
+use crate::io::summary::{
+    BalanceSummary, Checksums, ParticleSummary, PartsSeconds, RankMessages, Summary, WorkSummary,
+};
 use crate::physics::parts::Part;
 use crate::physics::simulation::Simulation;
 use crate::pipeline::kinds::TaskKind;
