@@ -13,6 +13,9 @@ use blockflow_kernels::Real;
 use blockflow_scheduler::{TaskGraph, TaskRecord};
 use std::collections::BTreeMap;
 
+/// Messages and bytes by what the messages carry.
+pub type MessageCounts = BTreeMap<String, (u64, u64)>;
+
 /// Totals over a run.
 #[derive(Clone, Debug, Default)]
 pub struct Totals {
@@ -42,7 +45,7 @@ pub struct Totals {
     /// sent them (`send`: ghost regions; `rb_sync`, `forces`: published bodies; `rb`: velocity changes;
     /// `boundary`, `map`: body forces), `halo` for the copies of the neighbours' particle state before
     /// each graph run, `migrate` for moved blocks — as (messages, bytes with their headers).
-    pub rank_messages: BTreeMap<String, (u64, u64)>,
+    pub rank_messages: MessageCounts,
     /// Under ranks: the bytes of those messages by destination rank (this rank's row; after
     /// [`Totals::summed`], one row per sending rank).
     pub rank_bytes: Vec<Vec<u64>>,
@@ -102,7 +105,7 @@ impl Totals {
         }
         let mine = serde_json::to_vec(&(&self.rank_messages, self.rank_bytes.first())).expect("serialises");
         for r in world.allgather(&mine)? {
-            let (m, row): (BTreeMap<String, (u64, u64)>, Option<Vec<u64>>) =
+            let (m, row): (MessageCounts, Option<Vec<u64>>) =
                 serde_json::from_slice(&r).expect("counts from a rank of this run");
             for (k, (n, b)) in m {
                 let e = out.rank_messages.entry(k).or_default();
