@@ -120,11 +120,12 @@ impl Error {
     }
 }
 
-/// Name of a signal number for messages (`SIGINT`, `SIGTERM`, else `signal N`).
+/// Name of a signal number for messages (`SIGINT`, `SIGTERM`, `SIGUSR1`, else `signal N`).
 pub fn signal_name(sig: i32) -> String {
     match sig {
         libc::SIGINT => "SIGINT".into(),
         libc::SIGTERM => "SIGTERM".into(),
+        libc::SIGUSR1 => "SIGUSR1".into(),
         s => format!("signal {s}"),
     }
 }

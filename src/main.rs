@@ -10,8 +10,13 @@ fn main() {
         Ok(cli) => cli,
         Err(e) => usage_error(e),
     };
-    if let Err(e) = blockflow::app::execute(cli) {
-        eprintln!("error: {e}");
+    use blockflow::app::mpi;
+    let r = mpi::start(cli.command.name()).and_then(|_| blockflow::app::execute(cli));
+    mpi::finish(r.is_ok());
+    if let Err(e) = r {
+        if mpi::reports(&e) {
+            eprintln!("error: {e}");
+        }
         std::process::exit(e.exit_code());
     }
 }

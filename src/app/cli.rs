@@ -51,3 +51,18 @@ pub enum Command {
         which: BenchKind,
     },
 }
+
+impl Command {
+    /// The subcommand's name on the command line.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Command::Run(_) => "run",
+            Command::Topology(_) => "topology",
+            Command::Calibrate(_) => "calibrate",
+            Command::Study(_) => "study",
+            Command::Sweep(_) => "sweep",
+            Command::Stress(_) => "stress",
+            Command::Bench { .. } => "bench",
+        }
+    }
+}

@@ -5,6 +5,7 @@
 pub mod bench;
 pub mod calibrate;
 pub mod cli;
+pub mod mpi;
 pub mod run;
 pub mod scan;
 pub mod signals;

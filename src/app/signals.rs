@@ -1,4 +1,5 @@
-//! The clean interruption of a run by SIGINT / SIGTERM: [`install_handlers`] makes the first signal set a
+//! The clean interruption of a run by SIGINT / SIGTERM / SIGUSR1 (what `mpirun` forwards to every rank
+//! of a job without ending it): [`install_handlers`] makes the first signal set a
 //! flag that the time loop reads at every stop ([`interrupted`]; the run then writes a checkpoint and
 //! summary.json with `"status": "interrupted"` and exits with 128 + the signal number); a second signal
 //! ends the process at once (`_exit`, same code), leaving at most a `.tmp` checkpoint behind.
@@ -18,10 +19,11 @@ extern "C" fn on_signal(sig: libc::c_int) {
     LAST_SIGNAL.store(sig, Ordering::SeqCst);
 }
 
-/// Installs the SIGINT / SIGTERM handlers of `blockflow run`: the first signal asks the run to stop at the
-/// next stop of the time loop ([`interrupted`]), a second one ends the process at once.
+/// Installs the SIGINT / SIGTERM / SIGUSR1 handlers of `blockflow run`: the first signal asks the run to
+/// stop at the next stop of the time loop ([`interrupted`]) with a checkpoint, a second one ends the
+/// process at once.
 pub fn install_handlers() -> Result<()> {
-    for sig in [libc::SIGINT, libc::SIGTERM] {
+    for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGUSR1] {
         // SAFETY: a zeroed sigaction is valid; the handler only touches atomics and calls `_exit`.
         let r = unsafe {
             let mut sa: libc::sigaction = std::mem::zeroed();
@@ -40,7 +42,7 @@ pub fn install_handlers() -> Result<()> {
     Ok(())
 }
 
-/// The signal that asked the run to stop, if one did (SIGINT = 2, SIGTERM = 15).
+/// The signal that asked the run to stop, if one did (SIGINT = 2, SIGUSR1 = 10, SIGTERM = 15).
 pub fn interrupted() -> Option<i32> {
     if SIGNALS.load(Ordering::SeqCst) > 0 {
         Some(LAST_SIGNAL.load(Ordering::SeqCst))

@@ -126,8 +126,8 @@ pub fn make_executor(cfg: &Config) -> Result<Executor> {
 }
 
 /// Starts the worker threads of one rank of `world`: one process of `processes.threads_per_process`
-/// threads, pinned by `processes.pin` to the rank's share of the cores a run of `processes.count` =
-/// ranks processes would use on this machine (the ranks of an in-process group share it).
+/// threads, pinned by `processes.pin` to the rank's share of the cores that the ranks on this machine
+/// would use as that many processes (all ranks of an in-process group share one machine).
 pub fn make_rank_executor(cfg: &Config, world: &crate::ranks::World) -> Result<Executor> {
     let pr = &cfg.processes;
     let ranks = world.ranks();

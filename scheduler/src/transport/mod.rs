@@ -1,7 +1,7 @@
 //! Moving bytes between ranks: the interface every rank driver talks through ([`Transport`]) and two
 //! implementations, [`SingleRank`] (one rank, no copies across anything) and [`Loopback`] (R ranks in one
 //! OS process, each on its own thread with its own mailbox, optionally with seeded random delays on every
-//! message). An MPI implementation is the third.
+//! message); with the `mpi` feature, `Mpi` (ranks in separate processes of an MPI job).
 //!
 //! The model is MPI's, reduced to what a block-structured solver needs:
 //! - point-to-point messages are owned byte vectors addressed by (receiver, [`Tag`]); a send never
@@ -17,11 +17,15 @@
 //!   never leaves the others hanging.
 
 mod loopback;
+#[cfg(feature = "mpi")]
+mod mpi;
 mod single;
 #[cfg(test)]
 mod tests;
 
 pub use loopback::{run_loopback, Delays, Loopback};
+#[cfg(feature = "mpi")]
+pub use mpi::Mpi;
 pub use single::SingleRank;
 
 use std::fmt;
@@ -118,6 +122,12 @@ pub trait Transport: Send + Sync {
 
     /// Ranks in the group.
     fn ranks(&self) -> usize;
+
+    /// This rank's index among the ranks on its machine, and their number (for placing its threads on
+    /// the machine's cores). In-process groups share one machine: (rank, ranks).
+    fn node_rank(&self) -> (Rank, usize) {
+        (self.rank(), self.ranks())
+    }
 
     /// Queues `bytes` for rank `to` under `tag` and returns at once (never waits for the receiver).
     fn send(&self, to: Rank, tag: Tag, bytes: Vec<u8>) -> Result<(), TransportError>;

@@ -4,6 +4,7 @@ pub mod accuracy;
 pub mod balance;
 pub mod coupled;
 pub mod kernel;
+pub mod mpi;
 pub mod rigid;
 pub mod scheduler;
 pub mod skip;
@@ -68,6 +69,23 @@ pub enum BenchKind {
         #[arg(long, default_value = "out/coupled")]
         out: PathBuf,
     },
+    /// Ranks against virtual processes: hopper-small on N = 1 … max ranks of an MPI job (`mpirun` of
+    /// this binary, built with `--features mpi`; else the in-process ranks of `--ranks`) and on N virtual
+    /// processes: time per step, messages per step and per rank pair, modeled time.
+    Mpi {
+        /// The CI size (1 and 2 ranks, 40 steps).
+        #[arg(long)]
+        quick: bool,
+        /// Most ranks.
+        #[arg(long, default_value_t = 4)]
+        max: usize,
+        /// Steps of every run.
+        #[arg(long, default_value_t = 400)]
+        steps: u64,
+        /// Output folder (the runs and mpi.md).
+        #[arg(long, default_value = "out/mpi")]
+        out: PathBuf,
+    },
     /// Run time against error: channel, couette, Taylor-Green and the drag array (CLI and SBB, three solid
     /// fractions) over resolution, f64 and f32; Pareto front per scene.
     Accuracy {
@@ -122,6 +140,26 @@ pub fn execute(which: BenchKind) -> Result<()> {
                 coupled::to_markdown(&rows),
                 out.display()
             ));
+            Ok(())
+        }
+        BenchKind::Mpi { quick, max, steps, out } => {
+            let (max, steps) = if quick {
+                (max.min(2), steps.min(40))
+            } else {
+                (max, steps)
+            };
+            if max == 0 || steps == 0 {
+                return Err(Error::Config("bench mpi: --max and --steps must be at least 1".into()));
+            }
+            let rows = mpi::bench(max, steps, &out, &accuracy::configs_dir())?;
+            let text = mpi::to_markdown(&rows);
+            crate::util::fs::write_atomic(&out.join("mpi.md"), text.as_bytes())?;
+            print(&format!("{text}results in {}\n", out.display()));
+            if rows.windows(2).any(|w| w[0].checksum != w[1].checksum) {
+                return Err(Error::Config(
+                    "bench mpi: the checksums differ between runs (see the table)".into(),
+                ));
+            }
             Ok(())
         }
         BenchKind::Balance => {

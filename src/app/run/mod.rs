@@ -178,8 +178,10 @@ pub fn execute(args: RunArgs) -> Result<()> {
     };
     let dir = output_dir(&cfg, &opts);
     let s = run(&cfg, &opts)?;
-    report::write(&dir, &s, &command_line())?;
-    crate::app::print_out(&recap::recap(&s, &cfg, &dir));
+    if crate::app::mpi::world().is_none_or(|w| w.is_root()) {
+        report::write(&dir, &s, &command_line())?;
+        crate::app::print_out(&recap::recap(&s, &cfg, &dir));
+    }
     Ok(())
 }
 
@@ -252,6 +254,20 @@ pub fn output_dir(cfg: &Config, opts: &RunOptions) -> PathBuf {
 /// share no memory (`processes.count` is then R); rank 0's summary is returned, or the error of the rank
 /// that failed first.
 pub fn run(cfg: &Config, opts: &RunOptions) -> Result<Summary> {
+    if let Some(world) = crate::app::mpi::world() {
+        // An MPI job: this process is one rank of it.
+        let n = world.ranks();
+        if cfg.processes.ranks > 1 && cfg.processes.ranks != n {
+            return Err(Error::Config(format!(
+                "processes.ranks = {}, but mpirun started {n} ranks: the ranks are the MPI job's; leave --ranks \
+                 out",
+                cfg.processes.ranks
+            )));
+        }
+        let mut cfg = cfg.clone();
+        (cfg.processes.ranks, cfg.processes.count) = (n, n);
+        return run_on(&cfg, opts, world);
+    }
     let ranks = cfg.processes.ranks;
     if ranks <= 1 {
         return run_on(cfg, opts, Arc::new(World::single()));
