@@ -12,9 +12,12 @@ fn main() {
     };
     use blockflow::app::mpi;
     let r = mpi::start(cli.command.name()).and_then(|_| blockflow::app::execute(cli));
-    mpi::finish(r.is_ok());
+    let own = r
+        .as_ref()
+        .is_err_and(|e| !matches!(e, blockflow::error::Error::Aborted { .. }));
+    mpi::finish(r.is_ok(), own);
     if let Err(e) = r {
-        if mpi::reports(&e) {
+        if mpi::reports() {
             eprintln!("error: {e}");
         }
         std::process::exit(e.exit_code());

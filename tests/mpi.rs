@@ -228,3 +228,25 @@ fn sigusr1_to_mpirun_checkpoints_and_stops_every_rank() {
     let ck = s["checkpoint"].as_str().expect("a checkpoint");
     assert!(Path::new(ck).exists());
 }
+
+#[test]
+fn a_failure_on_one_rank_ends_every_rank_with_its_code_and_one_line() {
+    let dir = tmp("one-fails");
+    let trace = dir.join("trace.json");
+    // Rank 1 writes its trace to trace.rank1.json: a folder there makes that write fail on rank 1 only.
+    std::fs::create_dir_all(dir.join("trace.rank1.json")).unwrap();
+    let mut c = mpirun(2);
+    c.args(["run", &config("hopper-small.toml"), "--steps", "20", "--trace"])
+        .arg(&trace)
+        .arg("--out")
+        .arg(dir.join("run"));
+    let o = finish(c, Duration::from_secs(60));
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("rank 1") && lines[0].contains("trace.rank1.json"),
+        "{err}"
+    );
+}

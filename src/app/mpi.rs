@@ -75,17 +75,21 @@ pub fn world() -> Option<Arc<World>> {
     JOB.get().map(|j| j.world.clone())
 }
 
-/// Whether this process reports `e`: outside an MPI job always; in one, rank 0 (which hears of every
-/// other rank's failure) and a rank whose own I/O failed (which may have failed after rank 0 was done).
-pub fn reports(e: &Error) -> bool {
-    let rank = world().map(|w| w.rank()).or_else(launched_rank).unwrap_or(0);
-    rank == 0 || matches!(e, Error::Io(_))
+/// Whether this process reports a failure: outside an MPI job always; in one, rank 0 only. Rank 0 hears
+/// of every other rank's failure (an abort notice, or the same error reached together), because every
+/// rank's last step that can fail comes before a collective of rank 0's.
+pub fn reports() -> bool {
+    world().map(|w| w.rank()).or_else(launched_rank).unwrap_or(0) == 0
 }
 
 /// Ends this process's part of the job after a command: a successful one finalises MPI; a failed one
 /// leaves it (the other ranks may be anywhere) and the process exits with the error's code, which ends
-/// the job.
-pub fn finish(ok: bool) {
+/// the job. A rank other than 0 that failed on its own (`own_failure`) first gives rank 0 a moment to
+/// take its notice and report it (the launcher ends every rank once one exits with an error).
+pub fn finish(ok: bool, own_failure: bool) {
+    if own_failure && !ok && world().is_some_and(|w| !w.is_root()) {
+        std::thread::sleep(std::time::Duration::from_secs(1));
+    }
     #[cfg(feature = "mpi")]
     if let (true, Some(job)) = (ok, JOB.get()) {
         job.mpi.finish(std::time::Duration::from_secs(10));

@@ -266,7 +266,13 @@ pub fn run(cfg: &Config, opts: &RunOptions) -> Result<Summary> {
         }
         let mut cfg = cfg.clone();
         (cfg.processes.ranks, cfg.processes.count) = (n, n);
-        return run_on(&cfg, opts, world);
+        let r = run_on(&cfg, opts, world.clone());
+        if let Err(e) = &r {
+            if !matches!(e, Error::Aborted { .. }) {
+                world.abort(e);
+            }
+        }
+        return r;
     }
     let ranks = cfg.processes.ranks;
     if ranks <= 1 {
