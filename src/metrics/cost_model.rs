@@ -21,6 +21,7 @@ use crate::config::{BalanceConfig, DEFAULT_BANDWIDTH, DEFAULT_LATENCY};
 use blockflow_scheduler::replay::replay_mapped;
 use blockflow_scheduler::{TaskGraph, TaskId, TaskSpec};
 use std::collections::HashMap;
+use std::sync::{mpsc, Arc};
 
 /// Price of a message: `α + bytes/β`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -157,6 +158,97 @@ pub fn model_run(run: &RecordedRun, owners: &[u32], m: &Machine) -> RunTimes {
         bsp_ns += slowest;
     }
     RunTimes { graph_ns, bsp_ns }
+}
+
+/// A recorded graph run that owns what it refers to (to be modeled on another thread).
+#[derive(Clone)]
+pub struct OwnedRun {
+    /// The graph.
+    pub graph: Arc<TaskGraph>,
+    /// Measured duration of every task.
+    pub durations_ns: Vec<u64>,
+    /// Steps of the run.
+    pub steps: usize,
+    /// What the tasks are.
+    pub tasks: Arc<dyn TaskSemantics + Send + Sync>,
+}
+
+impl OwnedRun {
+    /// The run as [`model_run`] takes it.
+    pub fn recorded(&self) -> RecordedRun<'_> {
+        RecordedRun {
+            graph: &self.graph,
+            durations_ns: &self.durations_ns,
+            steps: self.steps,
+            tasks: &*self.tasks,
+        }
+    }
+}
+
+/// Models graph runs on a thread of its own, while the next ones execute: [`Modeler::submit`] hands a run
+/// over, [`Modeler::collect`] waits for every run handed over since the last call and returns their
+/// times in submission order (the numbers [`model_run`] gives).
+pub struct Modeler {
+    jobs: Option<mpsc::Sender<(OwnedRun, Vec<u32>, Machine)>>,
+    results: mpsc::Receiver<RunTimes>,
+    outstanding: usize,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Default for Modeler {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Modeler {
+    /// A modeler with its thread.
+    pub fn new() -> Self {
+        let (jobs, rx) = mpsc::channel::<(OwnedRun, Vec<u32>, Machine)>();
+        let (tx, results) = mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("blockflow-model".into())
+            .spawn(move || {
+                for (run, owners, machine) in rx {
+                    if tx.send(model_run(&run.recorded(), &owners, &machine)).is_err() {
+                        return;
+                    }
+                }
+            })
+            .expect("spawn the modeling thread");
+        Modeler {
+            jobs: Some(jobs),
+            results,
+            outstanding: 0,
+            thread: Some(thread),
+        }
+    }
+
+    /// Hands over a run to model under `owners` on `machine`.
+    pub fn submit(&mut self, run: OwnedRun, owners: Vec<u32>, machine: Machine) {
+        self.jobs
+            .as_ref()
+            .expect("a live modeler")
+            .send((run, owners, machine))
+            .expect("the modeling thread is alive");
+        self.outstanding += 1;
+    }
+
+    /// Waits for the runs handed over since the last call and returns their times, in submission order.
+    pub fn collect(&mut self) -> Vec<RunTimes> {
+        (0..std::mem::take(&mut self.outstanding))
+            .map(|_| self.results.recv().expect("the modeling thread is alive"))
+            .collect()
+    }
+}
+
+impl Drop for Modeler {
+    fn drop(&mut self) {
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 #[cfg(test)]

@@ -121,7 +121,11 @@ impl IntervalLog {
 
     /// Adds the modeled times of a recorded graph run under this log's assignment.
     pub fn add_run(&mut self, run: &RecordedRun) {
-        let t = model_run(run, &self.owners, &self.machine);
+        self.add_times(model_run(run, &self.owners, &self.machine));
+    }
+
+    /// Adds modeled times (of runs under this log's assignment modeled elsewhere: [`super::cost_model::Modeler`]).
+    pub fn add_times(&mut self, t: super::cost_model::RunTimes) {
         self.current.modeled_seconds += t.graph_ns as f64 * 1e-9;
         self.current.bsp_seconds += t.bsp_ns as f64 * 1e-9;
     }

@@ -6,12 +6,13 @@ use super::kinds::{ByKind, Payload};
 use super::messages::MessageSizes;
 use super::skip::ByRule;
 use super::{BlockPartNs, Pipeline};
-use crate::metrics::cost_model::RecordedRun;
+use crate::metrics::cost_model::{OwnedRun, RecordedRun};
 use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
 use blockflow_kernels::Real;
 use blockflow_scheduler::{TaskGraph, TaskRecord};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 /// Messages and bytes by what the messages carry.
 pub type MessageCounts = BTreeMap<String, (u64, u64)>;
@@ -133,7 +134,7 @@ pub(super) struct LastRun {
 #[derive(Clone, Copy)]
 pub struct RunRecord<'a> {
     /// The graph that ran.
-    pub graph: &'a TaskGraph,
+    pub graph: &'a Arc<TaskGraph>,
     /// Thread CPU nanoseconds of every task (index = task id).
     pub durations_ns: &'a [u64],
     /// Steps of the run.
@@ -148,7 +149,7 @@ pub struct RunRecord<'a> {
     /// block), index `step * blocks + block`: the m_X of section 3.
     pub block_part_ns: Option<&'a [BlockPartNs]>,
     /// What the ghost-region edges carry.
-    pub sizes: &'a MessageSizes,
+    pub sizes: &'a Arc<MessageSizes>,
 }
 
 impl<'a> RunRecord<'a> {
@@ -158,7 +159,17 @@ impl<'a> RunRecord<'a> {
             graph: self.graph,
             durations_ns: self.durations_ns,
             steps: self.steps,
-            tasks: self.sizes,
+            tasks: &**self.sizes,
+        }
+    }
+
+    /// The run with copies of what it refers to, to be modeled elsewhere.
+    pub fn owned(&self) -> OwnedRun {
+        OwnedRun {
+            graph: self.graph.clone(),
+            durations_ns: self.durations_ns.to_vec(),
+            steps: self.steps,
+            tasks: self.sizes.clone(),
         }
     }
 }

@@ -129,7 +129,7 @@ struct Trace {
 /// A compiled graph: the tasks this process runs and, under ranks, the messages along the edges to
 /// and from the other ranks' tasks.
 struct Compiled {
-    graph: TaskGraph,
+    graph: Arc<TaskGraph>,
     messages: Option<RankGraph>,
 }
 
@@ -172,7 +172,7 @@ pub struct Pipeline<T: Real> {
     graphs: HashMap<usize, Compiled>,
     counts: HashMap<usize, GraphCounts>,
     plan: MessagePlan<T>,
-    sizes: MessageSizes,
+    sizes: Arc<MessageSizes>,
     stats: Vec<Mutex<SweepStats>>,
     totals: Totals,
     last: LastRun,
@@ -213,7 +213,7 @@ impl<T: Real> Pipeline<T> {
             graphs: HashMap::new(),
             counts: HashMap::new(),
             plan,
-            sizes: MessageSizes::of(sim),
+            sizes: Arc::new(MessageSizes::of(sim)),
             stats: Vec::new(),
             totals: Totals::default(),
             last: LastRun::default(),
@@ -366,13 +366,13 @@ impl<T: Real> Pipeline<T> {
             let global = g.build().expect("the step graph is acyclic");
             let compiled = match me {
                 None => Compiled {
-                    graph: global,
+                    graph: Arc::new(global),
                     messages: None,
                 },
                 Some(me) => {
                     let (graph, messages) = RankGraph::project(&global, me);
                     Compiled {
-                        graph,
+                        graph: Arc::new(graph),
                         messages: Some(messages),
                     }
                 }

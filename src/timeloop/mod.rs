@@ -24,7 +24,7 @@ use crate::balance::Balancer;
 use crate::config::Config;
 use crate::error::Result;
 use crate::estimator::Quantities;
-use crate::metrics::cost_model::{CommModel, Machine};
+use crate::metrics::cost_model::{CommModel, Machine, Modeler};
 use crate::metrics::interval::{IntervalLog, IntervalStats};
 use crate::metrics::load::predicted_imbalance;
 use crate::physics::parts::{ByPart, Part};
@@ -64,6 +64,8 @@ pub struct TimeLoop<T: Real> {
     parts_before: ByPart<f64>,
     /// The ranks the run is spread over (one, under virtual processes).
     world: Arc<World>,
+    /// Models the recorded graph runs while the next ones execute (one rank only).
+    modeler: Option<Modeler>,
 }
 
 impl<T: Real> TimeLoop<T> {
@@ -128,6 +130,7 @@ impl<T: Real> TimeLoop<T> {
             observers: Vec::new(),
             stepping_seconds: 0.0,
             parts_before: ByPart::default(),
+            modeler: world.is_single().then(Modeler::new),
             world,
         })
     }
@@ -287,8 +290,8 @@ impl<T: Real> TimeLoop<T> {
     /// ranks the modeled times are not computed: each rank knows only its share of the graph.)
     fn record_run(&mut self, k: usize) -> Result<()> {
         let Some(run) = self.pipe.last_run() else { return Ok(()) };
-        if self.world.is_single() {
-            self.log.add_run(&run.recorded());
+        if let Some(m) = self.modeler.as_mut() {
+            m.submit(run.owned(), self.log.owners().to_vec(), *self.log.machine());
         }
         let cur = self.log.current_mut();
         cur.wall_seconds += run.wall_seconds;
@@ -317,6 +320,11 @@ impl<T: Real> TimeLoop<T> {
         }
         if !self.world.is_single() {
             self.gather_interval()?;
+        }
+        if let Some(m) = self.modeler.as_mut() {
+            for t in m.collect() {
+                self.log.add_times(t);
+            }
         }
         if self.log.close(step, &self.block_load, &self.sim.domain).is_none() {
             return Ok(());
