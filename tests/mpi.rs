@@ -4,41 +4,22 @@
 //! key is one line and exit 1 on every rank; SIGUSR1 to mpirun checkpoints and stops.
 #![cfg(feature = "mpi")]
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_blockflow");
 
-fn config(file: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("configs")
-        .join(file)
-        .display()
-        .to_string()
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("blockflow-mpi-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 /// `mpirun -np N BIN ARGS` as root on an oversubscribed 2-core machine.
 fn mpirun(np: usize) -> Command {
     let mut c = Command::new("mpirun");
-    c.args([
-        "--allow-run-as-root",
-        "--oversubscribe",
-        "--bind-to",
-        "none",
-        "-q",
-        "-np",
-    ])
-    .arg(np.to_string())
-    .arg(BIN)
-    .env("OMPI_MCA_rmaps_base_oversubscribe", "1");
+    c.args(blockflow_scheduler::transport::MPIRUN_SMALL_MACHINE)
+        .arg("-np")
+        .arg(np.to_string())
+        .arg(BIN)
+        .env("OMPI_MCA_rmaps_base_oversubscribe", "1");
     c
 }
 
@@ -92,8 +73,8 @@ fn on_ranks(np: usize, args: &[&str], out: &Path) -> serde_json::Value {
 
 #[test]
 fn ranks_of_an_mpi_job_give_the_checksums_of_one_process() {
-    let dir = tmp("checksums");
-    let hopper = config("hopper-small.toml");
+    let dir = common::fresh_dir("checksums");
+    let hopper = common::scene_path("hopper-small.toml");
     let args = [hopper.as_str(), "--steps", "120"];
     let want = single(&args, &dir.join("one"))["checksum"].clone();
     for np in [1, 2, 3] {
@@ -110,8 +91,8 @@ fn ranks_of_an_mpi_job_give_the_checksums_of_one_process() {
 
 #[test]
 fn blocks_migrate_between_mpi_ranks() {
-    let dir = tmp("migrate");
-    let hopper = config("hopper-small.toml");
+    let dir = common::fresh_dir("migrate");
+    let hopper = common::scene_path("hopper-small.toml");
     let args = [
         hopper.as_str(),
         "--steps",
@@ -130,8 +111,8 @@ fn blocks_migrate_between_mpi_ranks() {
 
 #[test]
 fn a_killed_rank_restarts_from_its_checkpoint_on_other_ranks_and_processes() {
-    let dir = tmp("kill");
-    let hopper = config("hopper-small.toml");
+    let dir = common::fresh_dir("kill");
+    let hopper = common::scene_path("hopper-small.toml");
     let out = dir.join("killed");
     let base = ["--balance", "hilbert", "--interval", "50"];
     let mut c = mpirun(3);
@@ -191,7 +172,12 @@ fn a_killed_rank_restarts_from_its_checkpoint_on_other_ranks_and_processes() {
 #[test]
 fn a_bad_key_is_one_line_and_exit_1_on_every_rank() {
     let mut c = mpirun(3);
-    c.args(["run", &config("hopper-small.toml"), "--set", "fluid.taux=0.6"]);
+    c.args([
+        "run",
+        &common::scene_path("hopper-small.toml"),
+        "--set",
+        "fluid.taux=0.6",
+    ]);
     let o = finish(c, Duration::from_secs(60));
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);
@@ -202,11 +188,17 @@ fn a_bad_key_is_one_line_and_exit_1_on_every_rank() {
 
 #[test]
 fn sigusr1_to_mpirun_checkpoints_and_stops_every_rank() {
-    let dir = tmp("usr1");
+    let dir = common::fresh_dir("usr1");
     let out = dir.join("run");
     let mut c = mpirun(2);
-    c.args(["run", &config("hopper-small.toml"), "--steps", "100000", "--out"])
-        .arg(&out);
+    c.args([
+        "run",
+        &common::scene_path("hopper-small.toml"),
+        "--steps",
+        "100000",
+        "--out",
+    ])
+    .arg(&out);
     let child = c.stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
     let start = Instant::now();
     while !out.join("series.csv.partial").exists() {
@@ -231,15 +223,21 @@ fn sigusr1_to_mpirun_checkpoints_and_stops_every_rank() {
 
 #[test]
 fn a_failure_on_one_rank_ends_every_rank_with_its_code_and_one_line() {
-    let dir = tmp("one-fails");
+    let dir = common::fresh_dir("one-fails");
     let trace = dir.join("trace.json");
     // Rank 1 writes its trace to trace.rank1.json: a folder there makes that write fail on rank 1 only.
     std::fs::create_dir_all(dir.join("trace.rank1.json")).unwrap();
     let mut c = mpirun(2);
-    c.args(["run", &config("hopper-small.toml"), "--steps", "20", "--trace"])
-        .arg(&trace)
-        .arg("--out")
-        .arg(dir.join("run"));
+    c.args([
+        "run",
+        &common::scene_path("hopper-small.toml"),
+        "--steps",
+        "20",
+        "--trace",
+    ])
+    .arg(&trace)
+    .arg("--out")
+    .arg(dir.join("run"));
     let o = finish(c, Duration::from_secs(60));
     assert_eq!(o.status.code(), Some(1));
     let err = String::from_utf8_lossy(&o.stderr);

@@ -192,18 +192,10 @@ fn read(p: &std::path::Path) -> Vec<u8> {
     std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
 
-fn config(file: &str) -> String {
-    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("configs")
-        .join(file)
-        .display()
-        .to_string()
-}
-
 #[test]
 fn a_run_on_ranks_writes_the_outputs_and_checkpoint_of_the_same_run_on_processes() {
     let dir = common::tmp("ranks-outputs");
-    let hopper = config("hopper-small.toml");
+    let hopper = common::scene_path("hopper-small.toml");
     // The same output folder for both, so that the checkpoints' configurations agree.
     let out = dir.join("run");
     let o = out.display().to_string();
@@ -258,7 +250,7 @@ fn a_run_on_ranks_writes_the_outputs_and_checkpoint_of_the_same_run_on_processes
 #[test]
 fn checkpoints_restart_on_any_number_of_ranks_or_processes() {
     let dir = common::tmp("ranks-restart");
-    let hopper = config("hopper-small.toml");
+    let hopper = common::scene_path("hopper-small.toml");
     let straight = dir.join("straight").display().to_string();
     let base = ["--set", "balance.strategy=\"hilbert\"", "--interval", "40"];
     let mut a = vec![
@@ -307,7 +299,7 @@ fn checkpoints_restart_on_any_number_of_ranks_or_processes() {
 fn a_bad_key_under_ranks_is_one_line_and_exit_1() {
     let r = blockflow(&[
         "run",
-        &config("hopper-small.toml"),
+        &common::scene_path("hopper-small.toml"),
         "--ranks",
         "3",
         "--set",

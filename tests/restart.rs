@@ -4,24 +4,11 @@
 //! reason; SIGTERM stops a run with a checkpoint it can be continued from; the output folder and the
 //! memory a scene needs are checked before the first step.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("blockflow-restart-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn config(file: &str) -> String {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("configs")
-        .join(file)
-        .display()
-        .to_string()
-}
 
 fn blockflow(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_blockflow"))
@@ -61,8 +48,8 @@ fn checksums(s: &serde_json::Value) -> (String, String) {
 /// checkpoint, restarted to `n` steps with `second` options: identical checksums, and the restart says
 /// where it came from.
 fn restart_matches(name: &str, scene: &str, sets: &[&str], n: u64, first: &[&str], second: &[&str]) -> PathBuf {
-    let dir = tmp(name);
-    let scene = config(scene);
+    let dir = common::fresh_dir(name);
+    let scene = common::scene_path(scene);
     let (ns, half) = (n.to_string(), (n / 2).to_string());
     let mut common = vec![scene.as_str()];
     for s in sets {
@@ -176,8 +163,8 @@ fn restart_is_bitwise_granular_box_with_rounds() {
 #[test]
 fn checkpoint_blocks_do_not_depend_on_the_process_count() {
     use blockflow::checkpoint::Checkpoint;
-    let dir = tmp("per-block");
-    let tg = config("hopper-small.toml");
+    let dir = common::fresh_dir("per-block");
+    let tg = common::scene_path("hopper-small.toml");
     let mut files = Vec::new();
     for p in ["1", "3"] {
         let out = dir.join(p);
@@ -242,7 +229,7 @@ fn checkpoint_blocks_do_not_depend_on_the_process_count() {
 
 /// Asserts a clean one-line failure with the exit code, naming every needle, that started nothing.
 fn fails_cleanly(args: &[&str], code: i32, needles: &[&str]) {
-    let out = tmp(&format!(
+    let out = common::fresh_dir(&format!(
         "fail-{}",
         needles.join("-").replace(['/', '.', ' ', '"', '='], "_")
     ));
@@ -269,7 +256,7 @@ fn fails_cleanly(args: &[&str], code: i32, needles: &[&str]) {
 fn good_checkpoint(dir: &Path) -> PathBuf {
     run_ok(
         &[
-            &config("taylor_green.toml"),
+            &common::scene_path("taylor_green.toml"),
             "--set",
             "scene.resolution=16",
             "--steps",
@@ -284,7 +271,7 @@ fn good_checkpoint(dir: &Path) -> PathBuf {
 
 #[test]
 fn bad_checkpoints_are_refused_with_one_line() {
-    let dir = tmp("bad");
+    let dir = common::fresh_dir("bad");
     let good = good_checkpoint(&dir);
     let bytes = std::fs::read(&good).unwrap();
     let n = bytes.len();
@@ -327,12 +314,12 @@ fn bad_checkpoints_are_refused_with_one_line() {
     // From another scene: the scene file given beside it has other physics.
     let g = good.display().to_string();
     fails_cleanly(
-        &[&config("channel.toml"), "--restart", &g],
+        &[&common::scene_path("channel.toml"), "--restart", &g],
         4,
         &[&g, "another scene", "channel.toml", "scene.kind"],
     );
     fails_cleanly(
-        &[&config("taylor_green.toml"), "--restart", &g],
+        &[&common::scene_path("taylor_green.toml"), "--restart", &g],
         4,
         &[&g, "another scene", "scene.resolution"],
     );
@@ -352,7 +339,7 @@ fn bad_checkpoints_are_refused_with_one_line() {
     let out = dir.join("again");
     let s = run_ok(
         &[
-            &config("taylor_green.toml"),
+            &common::scene_path("taylor_green.toml"),
             "--set",
             "scene.resolution=16",
             "--restart",
@@ -369,10 +356,10 @@ fn bad_checkpoints_are_refused_with_one_line() {
 /// only the newest `run.checkpoints_kept` stay.
 #[test]
 fn checkpoints_are_kept_and_named_only_when_complete() {
-    let dir = tmp("kept");
+    let dir = common::fresh_dir("kept");
     run_ok(
         &[
-            &config("taylor_green.toml"),
+            &common::scene_path("taylor_green.toml"),
             "--set",
             "scene.resolution=16",
             "--steps",
@@ -413,8 +400,8 @@ fn has_checkpoint(dir: &Path) -> bool {
 /// uninterrupted run ends.
 #[test]
 fn sigterm_stops_with_a_checkpoint_that_continues_bitwise() {
-    let dir = tmp("sigterm");
-    let tg = config("taylor_green.toml");
+    let dir = common::fresh_dir("sigterm");
+    let tg = common::scene_path("taylor_green.toml");
     let out = dir.join("killed");
     let child = Command::new(env!("CARGO_BIN_EXE_blockflow"))
         .args(["run", &tg, "--set", "scene.resolution=16", "--steps", "1000000"])
@@ -466,9 +453,14 @@ fn sigterm_stops_with_a_checkpoint_that_continues_bitwise() {
 /// SIGINT without periodic checkpoints: the interruption writes the run's only checkpoint; exit 130.
 #[test]
 fn sigint_without_periodic_checkpoints_writes_one() {
-    let out = tmp("sigint");
+    let out = common::fresh_dir("sigint");
     let child = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-        .args(["run", &config("taylor_green.toml"), "--set", "scene.resolution=16"])
+        .args([
+            "run",
+            &common::scene_path("taylor_green.toml"),
+            "--set",
+            "scene.resolution=16",
+        ])
         .args(["--steps", "1000000", "--out"])
         .arg(&out)
         .stderr(Stdio::piped())
@@ -494,9 +486,9 @@ fn sigint_without_periodic_checkpoints_writes_one() {
 /// A second signal ends the run at once (no hang, no panic), with 128 + the signal.
 #[test]
 fn second_signal_aborts_at_once() {
-    let out = tmp("twice");
+    let out = common::fresh_dir("twice");
     let child = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-        .args(["run", &config("taylor_green.toml"), "--steps", "1000000"])
+        .args(["run", &common::scene_path("taylor_green.toml"), "--steps", "1000000"])
         .args(["--checkpoint-every", "4", "--out"])
         .arg(&out)
         .stderr(Stdio::piped())
@@ -523,12 +515,12 @@ fn second_signal_aborts_at_once() {
 
 #[test]
 fn output_folder_and_memory_are_checked_before_the_first_step() {
-    let dir = tmp("resources");
+    let dir = common::fresh_dir("resources");
     let file = dir.join("a-file");
     std::fs::write(&file, b"x").unwrap();
     let o = blockflow(&[
         "run",
-        &config("taylor_green.toml"),
+        &common::scene_path("taylor_green.toml"),
         "--out",
         &file.join("sub").display().to_string(),
     ]);
@@ -538,7 +530,11 @@ fn output_folder_and_memory_are_checked_before_the_first_step() {
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     // A huge domain is refused before allocation, with the estimate in bytes.
     fails_cleanly(
-        &[&config("taylor_green.toml"), "--set", "scene.resolution=40000"],
+        &[
+            &common::scene_path("taylor_green.toml"),
+            "--set",
+            "scene.resolution=40000",
+        ],
         1,
         &["needs an estimated", "bytes", "MemAvailable", "domain.blocks"],
     );
@@ -548,10 +544,15 @@ fn output_folder_and_memory_are_checked_before_the_first_step() {
 /// summary that looks like a result.
 #[test]
 fn a_write_failing_later_is_a_clear_error() {
-    let dir = tmp("removed");
+    let dir = common::fresh_dir("removed");
     let out = dir.join("out");
     let child = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-        .args(["run", &config("taylor_green.toml"), "--set", "scene.resolution=16"])
+        .args([
+            "run",
+            &common::scene_path("taylor_green.toml"),
+            "--set",
+            "scene.resolution=16",
+        ])
         .args(["--steps", "1000000", "--checkpoint-every", "8", "--out"])
         .arg(&out)
         .stderr(Stdio::piped())

@@ -68,6 +68,8 @@ pub fn crossing_directions(d: [i32; 3]) -> Vec<usize> {
 }
 
 #[cfg(test)]
+// Direction and axis indices name lattice vectors here, as in the equations.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
 

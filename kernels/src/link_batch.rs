@@ -258,7 +258,7 @@ mod tests {
             expect.push((f_in, rel_b, v_b));
             b.len += 1;
         }
-        assert!(Q == 19);
+        const { assert!(Q == 19) };
         b.solve();
         for (j, (f_in, rel_b, v_b)) in expect.into_iter().enumerate() {
             assert_eq!(b.f_in[j].to_bits(), f_in.to_bits(), "link {j}");

@@ -299,6 +299,8 @@ pub fn full_segments(layout: &Layout) -> Vec<Segment> {
 }
 
 #[cfg(test)]
+// Direction and axis indices name lattice vectors here, as in the equations.
+#[allow(clippy::needless_range_loop)]
 mod tests {
     use super::*;
     use crate::trt::equilibrium;

@@ -78,15 +78,8 @@ fn the_mpi_transport_on_three_ranks() {
     }
     let exe = std::env::current_exe().unwrap();
     let o = Command::new("mpirun")
-        .args([
-            "--allow-run-as-root",
-            "--oversubscribe",
-            "--bind-to",
-            "none",
-            "-q",
-            "-np",
-            "3",
-        ])
+        .args(blockflow_scheduler::transport::MPIRUN_SMALL_MACHINE)
+        .args(["-np", "3"])
         .arg(exe)
         .args(["--exact", "the_mpi_transport_on_three_ranks", "--test-threads=1"])
         .output()

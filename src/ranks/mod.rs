@@ -245,31 +245,7 @@ pub fn run_loopback<R: Send>(
     delays: Option<blockflow_scheduler::transport::Delays>,
     f: impl Fn(World) -> R + Sync,
 ) -> Vec<R> {
-    let group = blockflow_scheduler::transport::Loopback::group(ranks, delays);
-    std::thread::scope(|s| {
-        let handles: Vec<_> = group
-            .into_iter()
-            .map(|t| {
-                let f = &f;
-                let t: Arc<dyn Transport> = Arc::new(t);
-                std::thread::Builder::new()
-                    .name(format!("blockflow-rank{}", t.rank()))
-                    .spawn_scoped(s, move || {
-                        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(World::new(t.clone()))));
-                        if out.is_err() {
-                            t.abort(101, "the rank's driver panicked");
-                        }
-                        out
-                    })
-                    .expect("spawn a rank thread")
-            })
-            .collect();
-        let results: Vec<_> = handles.into_iter().map(|h| h.join().expect("rank thread")).collect();
-        results
-            .into_iter()
-            .map(|r| r.unwrap_or_else(|p| std::panic::resume_unwind(p)))
-            .collect()
-    })
+    blockflow_scheduler::transport::run_loopback_shared(ranks, delays, |t| f(World::new(t)))
 }
 
 #[cfg(test)]

@@ -4,22 +4,17 @@
 //! keeps copies of these for the blocks of other ranks next to its own, and the bytes carry the exact
 //! bits, so a copy reads as the original.
 
-use super::read::BlockReader;
-use super::write::{put_body, put_body_force, put_count, put_v3};
+use super::read::{read_listed, BlockReader};
+use super::write::{put_body, put_body_force, put_count, put_v3, write_bodies};
 use super::FormatError;
 use crate::physics::particle_cells::BodyForce;
 use crate::physics::particles::{Delta, OwnedImpulse, Published};
-use crate::util::bytes::{put_u32, put_u64, Reader};
+use crate::util::bytes::{put_u64, Reader};
 use blockflow_kernels::rigid::Body;
 
 /// Appends a published list.
 pub fn encode_published(list: &Published, out: &mut Vec<u8>) {
-    debug_assert_eq!(list.bodies.len(), list.homes.len());
-    put_count(out, list.bodies.len());
-    for (b, &h) in list.bodies.iter().zip(&list.homes) {
-        put_body(out, b);
-        put_u32(out, h);
-    }
+    write_bodies(out, list);
     put_count(out, list.owned.len());
     for o in &list.owned {
         put_u64(out, o.a);
@@ -30,20 +25,7 @@ pub fn encode_published(list: &Published, out: &mut Vec<u8>) {
 
 /// Reads a published list of [`encode_published`] (home blocks below `blocks`).
 pub fn decode_published(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> {
-    let n = r.count(super::BODY_BYTES + 4)?;
-    let mut list = Published {
-        bodies: Vec::with_capacity(n),
-        homes: Vec::with_capacity(n),
-        owned: Vec::new(),
-    };
-    for _ in 0..n {
-        list.bodies.push(r.body()?);
-        let h = r.u32()?;
-        if h as usize >= blocks {
-            return Err(r.bad(format_args!("home block {h} of {blocks}")).into());
-        }
-        list.homes.push(h);
-    }
+    let mut list = read_listed(r, blocks)?;
     let n = r.count(40)?;
     list.owned.reserve(n);
     for _ in 0..n {

@@ -196,6 +196,13 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
 }
 
 fn read_bodies(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> {
+    let list = read_listed(r, blocks)?;
+    r.finish()?;
+    Ok(list)
+}
+
+/// A published list's bodies and their home blocks (below `blocks`), as [`super::write`] puts them.
+pub(super) fn read_listed(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> {
     let n = r.count(BODY_BYTES + 4)?;
     let mut list = Published {
         bodies: Vec::with_capacity(n),
@@ -210,7 +217,6 @@ fn read_bodies(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> 
         }
         list.homes.push(h);
     }
-    r.finish()?;
     Ok(list)
 }
 

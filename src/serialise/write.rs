@@ -170,7 +170,7 @@ fn write_overlay(s: &mut impl Sink, l: &Layout, pc: &ParticleCells) {
     put_u64(s, pc.map_work.rows_derived);
 }
 
-fn write_bodies(s: &mut impl Sink, list: &Published) {
+pub(super) fn write_bodies(s: &mut impl Sink, list: &Published) {
     debug_assert_eq!(list.bodies.len(), list.homes.len());
     put_count(s, list.bodies.len());
     for (b, &h) in list.bodies.iter().zip(&list.homes) {

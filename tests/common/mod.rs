@@ -16,6 +16,22 @@ pub fn cfg(file: &str, sets: &[&str]) -> Config {
     config::load(&path, &sets).expect("valid scene")
 }
 
+/// The path of a scene file in configs/, as a command-line argument.
+pub fn scene_path(file: &str) -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("configs")
+        .join(file)
+        .display()
+        .to_string()
+}
+
+/// A fresh, empty, existing folder under the system temp dir.
+pub fn fresh_dir(name: &str) -> PathBuf {
+    let d = tmp(name);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
 /// A fresh output folder under the system temp dir.
 pub fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("blockflow-test-{}-{name}", std::process::id()));

@@ -376,16 +376,26 @@ impl Transport for Loopback {
 /// the results by rank. A rank whose `f` panics aborts the group (so the others do not wait for it) and
 /// the panic is re-raised here after every thread has ended.
 pub fn run_loopback<R: Send>(ranks: usize, delays: Option<Delays>, f: impl Fn(&Loopback) -> R + Sync) -> Vec<R> {
+    run_loopback_shared(ranks, delays, |t| f(&t))
+}
+
+/// [`run_loopback`] handing each rank its transport as an `Arc` (to keep in longer-lived state).
+pub fn run_loopback_shared<R: Send>(
+    ranks: usize,
+    delays: Option<Delays>,
+    f: impl Fn(Arc<Loopback>) -> R + Sync,
+) -> Vec<R> {
     let group = Loopback::group(ranks, delays);
     std::thread::scope(|s| {
         let handles: Vec<_> = group
-            .iter()
+            .into_iter()
             .map(|t| {
                 let f = &f;
+                let t = Arc::new(t);
                 std::thread::Builder::new()
                     .name(format!("blockflow-rank{}", t.rank))
                     .spawn_scoped(s, move || {
-                        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(t)));
+                        let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(t.clone())));
                         if out.is_err() {
                             t.abort(101, "the rank's driver panicked");
                         }

@@ -23,12 +23,17 @@ mod single;
 #[cfg(test)]
 mod tests;
 
-pub use loopback::{run_loopback, Delays, Loopback};
+pub use loopback::{run_loopback, run_loopback_shared, Delays, Loopback};
 #[cfg(feature = "mpi")]
 pub use mpi::Mpi;
 pub use single::SingleRank;
 
 use std::fmt;
+
+/// The `mpirun` options (Open MPI) that start more ranks than there are cores, as root, without binding
+/// ranks to cores, quietly; followed by `-np N`. For tests and benchmarks on a small machine, not for a
+/// cluster, where the launcher's own binding is wanted.
+pub const MPIRUN_SMALL_MACHINE: [&str; 5] = ["--allow-run-as-root", "--oversubscribe", "--bind-to", "none", "-q"];
 
 /// A rank's index in its group (0-based).
 pub type Rank = usize;

@@ -98,17 +98,11 @@ pub fn bench(max: usize, steps: u64, out: &Path, configs: &Path) -> Result<Vec<R
         let dir = out.join(format!("ranks-{n}"));
         let mut c = if mpi {
             let mut c = Command::new("mpirun");
-            c.args([
-                "--allow-run-as-root",
-                "--oversubscribe",
-                "--bind-to",
-                "none",
-                "-q",
-                "-np",
-            ])
-            .arg(n.to_string())
-            .arg(&exe)
-            .args(base(&dir));
+            c.args(blockflow_scheduler::transport::MPIRUN_SMALL_MACHINE)
+                .arg("-np")
+                .arg(n.to_string())
+                .arg(&exe)
+                .args(base(&dir));
             c
         } else {
             let mut c = Command::new(&exe);
