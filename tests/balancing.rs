@@ -28,9 +28,10 @@ fn live(sets: &[&str], steps: u64) -> ((u64, u64), Vec<f64>, Vec<f64>, u64) {
         comm: Default::default(),
     };
     let balancer = Balancer::of(&c.balance, c.processes.count, coeffs, &tl.sim().domain);
-    let cf = tl.add_observer(Counterfactual {
-        candidates: vec![Candidate::new(&name, balancer, init.owners, &init.weights, machine)],
-    });
+    let cf = tl.add_observer(Counterfactual::new(
+        vec![Candidate::new(&name, balancer, init.owners, &init.weights, machine)],
+        &c,
+    ));
     tl.advance(steps).expect("stable");
     tl.finish(&blockflow::timeloop::RunEnd::Done).unwrap();
     let li: Vec<f64> = tl.intervals().iter().map(|i| i.imbalance).collect();
@@ -124,6 +125,15 @@ fn test_sized_study_writes_table_and_figures() {
     }
     let moved: u64 = r.strategies.iter().map(|s| s.migrated_blocks).sum();
     assert!(moved > 0, "no strategy moved a block");
+    // A balancing step is its partition, its graph recompile (exactly when blocks moved: compiling a
+    // graph takes CPU time) and its migration, and nothing else.
+    for s in &r.strategies {
+        for iv in &s.intervals {
+            assert_eq!(iv.recompile_seconds > 0.0, iv.migrated_blocks > 0, "{}", s.name);
+            let parts = iv.partition_seconds + iv.recompile_seconds + iv.migration_seconds;
+            assert!((iv.balance_seconds - parts).abs() <= 1e-15 * parts, "{}", s.name);
+        }
+    }
     for f in [
         "table3.md",
         "table3.csv",

@@ -334,7 +334,7 @@ fn counterfactual<T: Real>(
         let balancer = crate::balance::Balancer::of(&c.balance, c.processes.count, coeffs, &sim.domain);
         candidates.push(Candidate::new(name, balancer, init.owners, &init.weights, machine));
     }
-    Ok(Counterfactual { candidates })
+    Ok(Counterfactual::new(candidates, cfg))
 }
 
 /// Prints `label: step N/END (S s)` to stderr every tenth of the run.
@@ -553,12 +553,12 @@ fn write(dir: &Path, r: &StudyReport) -> Result<()> {
     put("study.json", json)?;
     let mut iv = String::from(
         "strategy,interval,start,end,graph_seconds,bsp_seconds,imbalance,predicted_imbalance,edge_cut_mean,\
-         migrated_blocks,migrated_bytes,partition_seconds,migration_seconds\n",
+         migrated_blocks,migrated_bytes,partition_seconds,recompile_seconds,migration_seconds\n",
     );
     for s in &r.strategies {
         for (i, x) in s.intervals.iter().enumerate() {
             iv += &format!(
-                "{},{i},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{:.6e},{:.6e}\n",
+                "{},{i},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{:.6e},{:.6e},{:.6e}\n",
                 s.name,
                 x.start,
                 x.end,
@@ -570,6 +570,7 @@ fn write(dir: &Path, r: &StudyReport) -> Result<()> {
                 x.migrated_blocks,
                 x.migrated_bytes,
                 x.partition_seconds,
+                x.recompile_seconds,
                 x.migration_seconds
             );
         }

@@ -86,7 +86,7 @@ pub struct BalanceSummary {
     pub modeled_seconds: f64,
     /// Modeled time to solution (`bsp` model): per step the slowest process, messages included.
     pub bsp_seconds: f64,
-    /// Measured seconds of the balancing steps (weights, partition, migration, re-arm).
+    /// Measured seconds of the balancing steps (weights, partition, migration, the graph recompiled).
     pub balance_seconds: f64,
     /// Bytes of the serialised blocks migrated.
     pub migrated_bytes: u64,

@@ -45,6 +45,9 @@ pub struct IntervalStats {
     /// Modeled seconds of the migration: the slowest process's sent and received blocks as messages (a
     /// counterfactual).
     pub migration_seconds: f64,
+    /// Measured seconds of recompiling the step graph for the new assignment (message plan, graph compiled,
+    /// tasks counted) at the end of the interval, when blocks moved (a counterfactual).
+    pub recompile_seconds: f64,
     /// Wall-clock seconds of the graph runs (the live run).
     #[serde(skip)]
     pub wall_seconds: f64,
@@ -59,7 +62,7 @@ pub struct IntervalStats {
     #[serde(skip)]
     pub part_seconds: ByPart<f64>,
     /// Seconds of the balancing step at the end of the interval: measured for the live run (weights,
-    /// partition, migration, re-arm); partition measured plus migration modeled for a counterfactual.
+    /// partition, migration, graph recompiled); partition and recompile measured plus migration modeled for a counterfactual.
     #[serde(skip)]
     pub balance_seconds: f64,
 }

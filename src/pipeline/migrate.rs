@@ -15,8 +15,8 @@ use std::sync::Mutex;
 impl<T: Real> Pipeline<T> {
     /// Moves blocks to new owners: every block whose owner changes is serialised ([`crate::serialise`])
     /// by a thread of its old owner and rebuilt from the bytes by a thread of its new owner, which
-    /// first-touches its new fields; then the ghost-region message plan is recomputed and the compiled
-    /// graphs are dropped (the next run compiles for the new owners). Ghost layers are refilled by the
+    /// first-touches its new fields; then the ghost-region message plan is recomputed and the step graph
+    /// of a full graph run is compiled for the new owners. Ghost layers are refilled by the
     /// next step's exchange. The numerics never see an owner. Under ranks the bytes travel as messages
     /// (every rank calls this at once), the old owner gives the block up and the new one holds it from
     /// then on. Returns the blocks moved and their bytes (over all ranks).
@@ -38,6 +38,11 @@ impl<T: Real> Pipeline<T> {
         self.owners = owners;
         self.graphs.clear();
         self.counts.clear();
+        // The graph of a full run for the new owners, compiled here so that the balancing
+        // step's clock covers it.
+        if self.ranks.as_ref().is_none_or(|r| r.flags.is_some()) {
+            self.graph(sim, self.settings.steps_per_graph);
+        }
         Ok((moved.len(), bytes))
     }
 

@@ -163,6 +163,65 @@ impl ShapeFlags {
     }
 }
 
+/// The step graph of `k` steps for `owners` (block id → process or rank), with the cross-process ghost
+/// messages `outgoing` and the blocks' shape `flags`: the whole graph, or under ranks (`me`) rank `me`'s
+/// share of it; and its task counts.
+fn compile<T: Real>(
+    sim: &Simulation<T>,
+    owners: &[u32],
+    outgoing: &[Vec<messages::Outgoing>],
+    flags: &ShapeFlags,
+    k: usize,
+    no_skip: bool,
+    me: Option<u32>,
+) -> (Compiled, GraphCounts) {
+    let mut g = GraphBuilder::new();
+    let coupled = sim.particles.is_some() && flags.overlay.iter().any(|&o| o);
+    let moving = sim.particles.as_ref().is_some_and(|p| p.has_moving());
+    // Blocks whose fluid touches particles always get a boundary task.
+    let force_boundary: Vec<bool> = sim
+        .blocks
+        .iter()
+        .map(|b| {
+            b.fluid_cells > 0
+                && flags.overlay[b.id]
+                && (moving && sim.particles.as_ref().is_some_and(|p| p.active[b.id]) || flags.links[b.id])
+        })
+        .collect();
+    let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
+    if let (Some(parts), true) = (&sim.particles, moving) {
+        add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled, no_skip);
+    }
+    if no_skip {
+        add_static_map_tasks(&mut g, &sim.blocks, owners, k, &fluid);
+    }
+    let global = g.build().expect("the step graph is acyclic");
+    let compiled = match me {
+        None => Compiled {
+            graph: Arc::new(global),
+            messages: None,
+        },
+        Some(me) => {
+            let (graph, messages) = RankGraph::project(&global, me);
+            Compiled {
+                graph: Arc::new(graph),
+                messages: Some(messages),
+            }
+        }
+    };
+    let counts = count_tasks(sim, &compiled.graph, &force_boundary, no_skip);
+    (compiled, counts)
+}
+
+/// Compiles the step graph of `k` steps for the assignment `owners` of `sim`'s blocks as a pipeline of
+/// virtual processes would after moving its blocks there (the cross-process message plan, the graph
+/// compiled and its tasks counted), and drops it: the recompile a counterfactual balancing step is charged.
+pub fn compile_for<T: Real>(sim: &Simulation<T>, owners: &[u32], k: usize, no_skip: bool) {
+    let plan = MessagePlan::new(sim, owners);
+    let compiled = compile(sim, owners, &plan.outgoing, &ShapeFlags::of(sim), k, no_skip, None);
+    drop(std::hint::black_box(compiled));
+}
+
 /// Runs a [`Simulation`] through the task graph: the executor, the owners, the compiled graphs, the
 /// message plan and the task accounting (working memory only).
 pub struct Pipeline<T: Real> {
@@ -333,53 +392,25 @@ impl<T: Real> Pipeline<T> {
     /// The compiled graph of `k` steps for the current owners and active blocks (compiled on first use):
     /// the whole step graph, or under ranks this rank's share of it.
     fn graph(&mut self, sim: &Simulation<T>, k: usize) -> &Compiled {
-        let owners = &self.owners;
-        let outgoing = &self.plan.outgoing;
-        let no_skip = self.settings.no_skip;
-        let counts = &mut self.counts;
-        let flags = match &self.ranks {
-            Some(r) => r.flags.clone().expect("the flags are gathered before a graph run"),
-            None => ShapeFlags::of(sim),
-        };
-        let me = self.ranks.as_ref().map(|_| self.world.rank() as u32);
-        self.graphs.entry(k).or_insert_with(|| {
-            let mut g = GraphBuilder::new();
-            let coupled = sim.particles.is_some() && flags.overlay.iter().any(|&o| o);
-            let moving = sim.particles.as_ref().is_some_and(|p| p.has_moving());
-            // Blocks whose fluid touches particles always get a boundary task.
-            let force_boundary: Vec<bool> = sim
-                .blocks
-                .iter()
-                .map(|b| {
-                    b.fluid_cells > 0
-                        && flags.overlay[b.id]
-                        && (moving && sim.particles.as_ref().is_some_and(|p| p.active[b.id]) || flags.links[b.id])
-                })
-                .collect();
-            let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
-            if let (Some(parts), true) = (&sim.particles, moving) {
-                add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled, no_skip);
-            }
-            if no_skip {
-                add_static_map_tasks(&mut g, &sim.blocks, owners, k, &fluid);
-            }
-            let global = g.build().expect("the step graph is acyclic");
-            let compiled = match me {
-                None => Compiled {
-                    graph: Arc::new(global),
-                    messages: None,
-                },
-                Some(me) => {
-                    let (graph, messages) = RankGraph::project(&global, me);
-                    Compiled {
-                        graph: Arc::new(graph),
-                        messages: Some(messages),
-                    }
-                }
+        if !self.graphs.contains_key(&k) {
+            let flags = match &self.ranks {
+                Some(r) => r.flags.clone().expect("the flags are gathered before a graph run"),
+                None => ShapeFlags::of(sim),
             };
-            counts.insert(k, count_tasks(sim, &compiled.graph, &force_boundary, no_skip));
-            compiled
-        })
+            let me = self.ranks.as_ref().map(|_| self.world.rank() as u32);
+            let (compiled, counts) = compile(
+                sim,
+                &self.owners,
+                &self.plan.outgoing,
+                &flags,
+                k,
+                self.settings.no_skip,
+                me,
+            );
+            self.counts.insert(k, counts);
+            self.graphs.insert(k, compiled);
+        }
+        &self.graphs[&k]
     }
 
     /// Advances `sim` by one graph run of `k` steps (at most [`PipelineConfig::steps_per_graph`]): the

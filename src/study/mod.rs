@@ -60,8 +60,9 @@ impl Candidate {
     /// The balancing step at the end of an interval: weights from the interval's loads and the
     /// partitioner, timed together by the thread's CPU clock (the recording's task times are CPU times
     /// too, and a wall clock on a loaded machine would charge other programs to the partitioner), the
-    /// migration priced from the serialised bytes of the moved blocks.
-    fn balance<T: Real>(&mut self, cx: &RunContext<'_, T>, block_load: &[f64]) {
+    /// migration priced from the serialised bytes of the moved blocks, and the step graph of
+    /// `steps_per_graph` steps recompiled for the new assignment when blocks moved, timed by the same clock.
+    fn balance<T: Real>(&mut self, cx: &RunContext<'_, T>, block_load: &[f64], steps_per_graph: usize, no_skip: bool) {
         let m = *self.log.machine();
         let p = m.processes;
         let Some(bal) = self.balancer.as_mut() else {
@@ -95,13 +96,21 @@ impl Candidate {
                 k as f64 * m.comm.latency + n as f64 / m.comm.bandwidth
             })
             .fold(0.0, f64::max);
+        let recompile = if moved > 0 {
+            let t0 = blockflow_scheduler::executor::thread_cpu_ns();
+            crate::pipeline::compile_for(cx.sim, &dist.owners, steps_per_graph, no_skip);
+            (blockflow_scheduler::executor::thread_cpu_ns() - t0) as f64 * 1e-9
+        } else {
+            0.0
+        };
         if let Some(iv) = self.log.last_mut() {
             iv.migrated_blocks = moved;
             iv.migrated_bytes = bytes;
             iv.migrated_unrelabelled = dist.migrated_unrelabelled.map(|m| m as u64);
             iv.partition_seconds = partition;
             iv.migration_seconds = migration;
-            iv.balance_seconds = partition + migration;
+            iv.recompile_seconds = recompile;
+            iv.balance_seconds = partition + recompile + migration;
         }
         self.log.reassign(dist.owners, predicted);
     }
@@ -112,6 +121,22 @@ impl Candidate {
 pub struct Counterfactual {
     /// The candidates, in table order.
     pub candidates: Vec<Candidate>,
+    /// Steps per graph run of the recording: the graph a candidate recompiles after moving blocks.
+    pub steps_per_graph: usize,
+    /// Whether the recording runs every task on every block (`run.no_skip`).
+    pub no_skip: bool,
+}
+
+impl Counterfactual {
+    /// The counterfactuals `candidates` of a recording of `cfg` (its graph runs and skip rule are what a
+    /// candidate recompiles after moving blocks).
+    pub fn new(candidates: Vec<Candidate>, cfg: &crate::config::Config) -> Self {
+        Counterfactual {
+            candidates,
+            steps_per_graph: cfg.processes.steps_per_graph.max(1),
+            no_skip: cfg.run.no_skip,
+        }
+    }
 }
 
 impl<T: Real> Observer<T> for Counterfactual {
@@ -128,9 +153,10 @@ impl<T: Real> Observer<T> for Counterfactual {
     }
 
     fn interval_closed(&mut self, cx: &RunContext<'_, T>, interval: &IntervalStats, balanced: bool) -> Result<()> {
+        let (k, no_skip) = (self.steps_per_graph, self.no_skip);
         for c in &mut self.candidates {
             if c.log.close(cx.sim.step, &interval.block_load, &cx.sim.domain).is_some() && balanced {
-                c.balance(cx, &interval.block_load);
+                c.balance(cx, &interval.block_load, k, no_skip);
             }
         }
         Ok(())

@@ -16,8 +16,8 @@ pub struct Row {
     pub relative_runtime: f64,
     /// The same in the `bsp` model.
     pub relative_runtime_bsp: f64,
-    /// Share of the run spent balancing (weights and partition by the CPU clock, migration modeled),
-    /// percent.
+    /// Share of the run spent balancing (weights, partition and the graph's recompile by the CPU clock,
+    /// migration modeled), percent.
     pub balance_fraction: f64,
     /// Mean over intervals of the edge cut eq. (17) per process.
     pub edge_cut_mean: f64,

@@ -312,7 +312,7 @@ impl<T: Real> TimeLoop<T> {
     }
 
     /// Closes the interval under way (nothing when no step was taken since the last one); with
-    /// `balance`, the balancing step follows: weights, the strategy's owners, migration, re-arm.
+    /// `balance`, the balancing step follows: weights, the strategy's owners, migration, the graph recompiled.
     fn close_interval(&mut self, balance: bool) -> Result<()> {
         let step = self.sim.step;
         if step <= self.log.current_mut().start {
