@@ -188,8 +188,23 @@ fn blockflow(args: &[&str]) -> (i32, String, String) {
 fn calibrate_quick_end_to_end_and_run_loads_the_file() {
     let out = tmp("calibrate-quick");
     let scene = format!("{}/configs/calibration.toml", env!("CARGO_MANIFEST_DIR"));
-    let (code, stdout, stderr) = blockflow(&["calibrate", &scene, "--quick", "--out", out.to_str().unwrap()]);
+    let channel = format!("{}/configs/channel.toml", env!("CARGO_MANIFEST_DIR"));
+    let (code, stdout, stderr) = blockflow(&[
+        "calibrate",
+        &scene,
+        "--quick",
+        "--with",
+        &channel,
+        "--with-steps",
+        "60",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
     assert_eq!(code, 0, "{stderr}");
+    // The scene given with --with is the campaign's third run: one sample per block (the channel's two,
+    // both fluid) per step after the 50-step warm-up.
+    let csv = std::fs::read_to_string(out.join("samples.csv")).unwrap();
+    assert_eq!(csv.lines().filter(|l| l.starts_with("2,")).count(), 2 * (60 - 50));
     assert!(
         stdout.contains("step_in_sample") && stdout.contains("interval_held_out"),
         "{stdout}"

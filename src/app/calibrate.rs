@@ -57,6 +57,13 @@ pub struct CalibrateArgs {
     /// The paper's sizes (block sizes 24, 32, 48, 64; D = 10, 20; 2.5 T), for big machines.
     #[arg(long, conflicts_with = "quick")]
     pub paper: bool,
+    /// Further scenes recorded as they are (their own blocks, walls and spheres) for `--with-steps`
+    /// steps each, e.g. configs/hopper.toml for blocks that walls cut (repeatable).
+    #[arg(long = "with", value_name = "SCENE")]
+    pub with: Vec<PathBuf>,
+    /// Steps of each `--with` scene (the first 50 are dropped as in every run).
+    #[arg(long, default_value_t = 600)]
+    pub with_steps: u64,
     /// Output folder.
     #[arg(long, default_value = "out/calibration")]
     pub out: PathBuf,
@@ -87,6 +94,8 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
         model,
         interval: a.interval,
         samples: a.samples,
+        with: a.with,
+        with_steps: a.with_steps,
         out: a.out.clone(),
     };
     let report = run(&opts)?;
@@ -115,6 +124,10 @@ pub struct CalibrateOptions {
     pub interval: u64,
     /// A recorded samples.csv to refit instead of running the campaign.
     pub samples: Option<PathBuf>,
+    /// Further scenes recorded as they are, `with_steps` steps each.
+    pub with: Vec<PathBuf>,
+    /// Steps of each scene of `with`.
+    pub with_steps: u64,
     /// Output folder.
     pub out: PathBuf,
 }
@@ -388,11 +401,40 @@ fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
             steps: scene.steps,
         });
     }
-    let c = record(&plans)?;
-    let scenes = plans
+    let mut scenes: Vec<String> = plans
         .iter()
         .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.block_size, p.diameter))
         .collect();
+    for path in &o.with {
+        let sets = [
+            "processes.count=1",
+            "processes.threads_per_process=1",
+            "processes.steps_per_graph=1",
+            "processes.pin=\"compact\"",
+            "balance.strategy=\"none\"",
+        ]
+        .map(String::from);
+        let cfg = config::load(path, &sets)?;
+        let scene = scenes::build(&cfg)?;
+        let diameter = scene
+            .particles
+            .as_ref()
+            .and_then(|p| p.bodies.iter().map(|b| 2.0 * b.radius).reduce(f64::max))
+            .unwrap_or(0.0);
+        let block_size = cfg.domain.block_size.map(|b| b[0]).unwrap_or_else(|| {
+            let blocks = cfg.domain.blocks.unwrap_or(scene.default_blocks);
+            scene.cells.map_or(0, |c| c[0] / blocks[0].max(1))
+        });
+        scenes.push(format!("{} ({} steps)", path.display(), o.with_steps));
+        plans.push(Plan {
+            block_size,
+            diameter,
+            duration: 1.0,
+            cfg,
+            steps: o.with_steps,
+        });
+    }
+    let c = record(&plans)?;
     Ok((c, scenes))
 }
 
