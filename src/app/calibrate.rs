@@ -58,16 +58,24 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "quick")]
     pub paper: bool,
     /// Further scenes recorded as they are (their own blocks, walls and spheres) for `--with-steps`
-    /// steps each, e.g. configs/hopper.toml for blocks that walls cut (repeatable).
+    /// steps each (repeatable). Without it, the default campaign adds configs/hopper.toml and
+    /// configs/hopper-paper32.toml: blocks that walls cut, which the calibration scene does not have.
     #[arg(long = "with", value_name = "SCENE")]
     pub with: Vec<PathBuf>,
     /// Steps of each `--with` scene (the first 50 are dropped as in every run).
-    #[arg(long, default_value_t = 600)]
+    #[arg(long, default_value_t = 400)]
     pub with_steps: u64,
+    /// Record only the calibration scene: no `--with` scenes, not even the default campaign's.
+    #[arg(long, conflicts_with = "with")]
+    pub calibration_only: bool,
     /// Output folder.
     #[arg(long, default_value = "out/calibration")]
     pub out: PathBuf,
 }
+
+/// The scenes the default campaign records beside the calibration scene (`--with-steps` steps each):
+/// the hoppers at both block sizes, whose funnel walls cut blocks into short fluid runs.
+pub const DEFAULT_WITH: [&str; 2] = ["configs/hopper.toml", "configs/hopper-paper32.toml"];
 
 /// Runs `blockflow calibrate` and prints the coefficient table and error statistics.
 pub fn execute(a: CalibrateArgs) -> Result<()> {
@@ -85,6 +93,12 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
     if a.interval == 0 {
         return Err(Error::Config("calibrate: --interval must be at least 1 step".into()));
     }
+    let preset = !a.quick && !a.paper && a.samples.is_none() && a.block_sizes.is_empty() && a.diameters.is_empty();
+    let with = if a.with.is_empty() && preset && !a.calibration_only {
+        DEFAULT_WITH.iter().map(PathBuf::from).collect()
+    } else {
+        a.with
+    };
     let opts = CalibrateOptions {
         scene: a.scene,
         block_sizes: a.block_sizes,
@@ -94,7 +108,7 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
         model,
         interval: a.interval,
         samples: a.samples,
-        with: a.with,
+        with,
         with_steps: a.with_steps,
         out: a.out.clone(),
     };
@@ -176,6 +190,7 @@ impl Observer<f64> for Sampler {
                 q.k,
                 q.s,
                 q.runs,
+                q.breaks,
                 q.wall_links,
                 q.particle_links,
                 q.link_cells,
@@ -620,7 +635,7 @@ fn record(plans: &[Plan]) -> Result<Campaign> {
         runs: Vec::new(),
         fig6: Vec::new(),
         csv: String::from(
-            "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,wall_links,particle_links,\
+            "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,particle_links,\
              link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,contacts_seen,\
              scanned,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
         ),
@@ -847,6 +862,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
         "m_coup1",
         "m_coup2",
         "m_rb",
+        "breaks",
     ];
     let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
     let mut c = Campaign {
@@ -880,6 +896,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
             k: v[12],
             s: v[13],
             runs: v[14],
+            breaks: v[32],
             wall_links: v[15],
             particle_links: v[16],
             link_cells: v[17],

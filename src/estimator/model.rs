@@ -10,7 +10,7 @@
 //!
 //! | part | paper | `blockflow` |
 //! |---|---|---|
-//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), [F > 0] |
+//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), [F > 0] |
 //! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, particle links, link cells, [F > 0] |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |
@@ -78,6 +78,7 @@ const BLOCKFLOW: [Terms; 5] = [
     &[
         ("fluid_cells", "fluid cells F"),
         ("runs", "runs of fluid cells"),
+        ("breaks", "runs that restart the memory streams"),
         ("active", "1 if F > 0"),
     ],
     &[
@@ -167,7 +168,7 @@ fn paper_row(part: usize, q: &Quantities) -> Row {
 fn blockflow_row(part: usize, q: &Quantities) -> Row {
     let fluid = f64::from(u8::from(q.f > 0.0));
     match part {
-        0 => Row::of(&[q.f, q.runs, fluid]),
+        0 => Row::of(&[q.f, q.runs, q.breaks, fluid]),
         1 => Row::of(&[q.wall_links, q.particle_links, q.link_cells, 1.0].map(|x| x * fluid)),
         2 => Row::of(
             &[

@@ -2,7 +2,25 @@
 //! that the `blockflow` model of the estimator regresses on.
 
 use crate::physics::simulation::Simulation;
-use blockflow_kernels::Real;
+use blockflow_kernels::{Real, Segment};
+
+/// Elements between the end of one fluid run and the start of the next beyond which the next run counts
+/// as a new memory stream ([`Quantities::breaks`]): two 64-byte lines of f64, four of f32.
+pub const STREAM_GAP: usize = 16;
+
+/// The runs of `segs` (in memory order) that start more than [`STREAM_GAP`] elements after the end of
+/// the run before them; the first run counts as one.
+pub fn stream_breaks(segs: &[Segment]) -> f64 {
+    let mut end: Option<usize> = None;
+    let mut n = 0usize;
+    for s in segs {
+        if end.is_none_or(|e| s.start > e + STREAM_GAP) {
+            n += 1;
+        }
+        end = Some(s.start + s.len);
+    }
+    n as f64
+}
 
 /// Table 1 quantities of one block in one step, plus what this engine's tasks did in it (all f64, so
 /// that they enter the regressions directly).
@@ -25,6 +43,11 @@ pub struct Quantities {
     /// Runs of fluid cells the fluid kernel updates (each run costs a row set-up).
     #[serde(default)]
     pub runs: f64,
+    /// Runs that start more than [`STREAM_GAP`] elements past the end of the run before them: each one
+    /// restarts the memory streams of the 19 arrays instead of continuing them (a row cut short by a
+    /// wall, not one cut by a sphere).
+    #[serde(default)]
+    pub breaks: f64,
     /// Bounce-back links at walls (resting and moving).
     #[serde(default)]
     pub wall_links: f64,
@@ -83,6 +106,7 @@ impl Quantities {
                 q.f = pc.fluid_cells as f64;
                 q.nb = pc.near_boundary_cells as f64;
                 q.runs = pc.segments.len() as f64;
+                q.breaks = stream_breaks(&pc.segments);
                 q.link_cells = pc.link_cells.len() as f64;
                 q.particle_links = pc.link_cells.iter().map(|l| l.dirs.count_ones() as f64).sum();
                 // The mapping ran in the last step only where the block was active (else the overlay
@@ -100,6 +124,7 @@ impl Quantities {
                 q.f = blk.fluid_cells as f64;
                 q.nb = blk.near_boundary_cells as f64;
                 q.runs = blk.segments.len() as f64;
+                q.breaks = stream_breaks(&blk.segments);
             }
         }
         if let Some(p) = sim.particles.as_ref().filter(|p| p.active[b]) {
@@ -115,5 +140,28 @@ impl Quantities {
             q.rb_active = 1.0;
         }
         q
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seg(start: usize, len: usize) -> Segment {
+        Segment { start, len }
+    }
+
+    /// Full rows of a 32³ block (row pitch 34: two ghost cells between rows) continue one stream; a
+    /// sphere's chord of up to 16 cells does not break it; a run 30 cells further on (a row that a wall
+    /// cuts to 4 cells) starts a new one.
+    #[test]
+    fn stream_breaks_count_runs_that_restart_the_streams() {
+        assert_eq!(stream_breaks(&[]), 0.0);
+        let rows: Vec<Segment> = (0..32).map(|y| seg(35 + 34 * y, 32)).collect();
+        assert_eq!(stream_breaks(&rows), 1.0);
+        assert_eq!(stream_breaks(&[seg(35, 10), seg(35 + 10 + STREAM_GAP, 6)]), 1.0);
+        assert_eq!(stream_breaks(&[seg(35, 10), seg(35 + 10 + STREAM_GAP + 1, 6)]), 2.0);
+        let cut: Vec<Segment> = (0..20).map(|y| seg(35 + 34 * y, 4)).collect();
+        assert_eq!(stream_breaks(&cut), 20.0);
     }
 }
