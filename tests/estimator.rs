@@ -235,6 +235,19 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
     }
     assert_eq!(json["model"], "blockflow");
     assert!(json["never_fluid_samples"].as_u64().is_some());
+    // One row of interval statistics per run, named by the scene it recorded (the --with scene last).
+    let by_run = json["by_run"].as_array().unwrap();
+    assert_eq!(by_run.len(), 3, "{by_run:?}");
+    assert!(by_run[2]["scene"].as_str().unwrap().contains("channel.toml"));
+    for (i, r) in by_run.iter().enumerate() {
+        for k in ["interval_in_sample", "interval_held_out", "interval_predictive"] {
+            match r[k].as_f64() {
+                Some(v) => assert!((0.0..=1.0).contains(&v), "{r} {k}"),
+                // The channel's 10 samples fill no 100-step interval: nothing to score (null).
+                None => assert!(i == 2 && r[k].is_null(), "{r} {k}"),
+            }
+        }
+    }
     // The written coefficients are the blockflow model's, all costs ≥ 0.
     let c = blockflow::estimator::Coefficients::load(&out.join("coefficients.toml")).unwrap();
     assert_eq!(c.model, blockflow::estimator::Model::Blockflow);

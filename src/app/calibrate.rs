@@ -266,6 +266,8 @@ pub struct CalibrationReport {
     pub mad: BTreeMap<String, f64>,
     /// Both models on the same samples.
     pub models: BTreeMap<String, ModelReport>,
+    /// The written model's interval statistics per run (scene), in-sample and held out.
+    pub by_run: Vec<RunScores>,
     /// What timing noise alone allows.
     pub noise_floor: NoiseReport,
     /// Median share m_X / m_tot per part.
@@ -380,7 +382,16 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
             let scenes = c
                 .runs
                 .iter()
-                .map(|r| format!("{} with b_s = {}, D = {}", o.scene.display(), r.block_size, r.diameter))
+                .enumerate()
+                .map(|(k, r)| {
+                    // samples.csv does not name the scene a run recorded (it may be a --with scene).
+                    format!(
+                        "run {k} of {}: b_s = {}, D = {}",
+                        path.display(),
+                        r.block_size,
+                        r.diameter
+                    )
+                })
                 .collect();
             (c, scenes, format!("refit of {}", path.display()))
         }
@@ -491,13 +502,29 @@ fn fit_and_report(
     };
     let mut models = BTreeMap::new();
     let mut chosen = None;
+    let mut by_run = Vec::new();
     for model in [Model::Paper, Model::Blockflow] {
         let coeffs = estimator::fit(&fluid, prov.clone(), model, o.interval);
         let ev: Evaluation = estimator::evaluate(&coeffs, &fluid);
         let in_sample = estimator::score(&coeffs, &fluid, o.interval);
-        let held = estimator::cross_validate(&fluid, model, o.interval);
+        let held_by_run = estimator::cross_validate_by_run(&fluid, model, o.interval);
+        let mut held = Scores::default();
+        for (_, sc) in &held_by_run {
+            held.add(sc);
+        }
         let r = ModelReport::of(&ev, &in_sample, &held);
         if model == o.model {
+            by_run = held_by_run
+                .iter()
+                .map(|(run, h)| {
+                    let own: Vec<Sample> = fluid.iter().filter(|s| s.run == *run).copied().collect();
+                    RunScores::of(
+                        prov.scenes.get(*run).cloned().unwrap_or_else(|| format!("run {run}")),
+                        &estimator::score(&coeffs, &own, o.interval),
+                        h,
+                    )
+                })
+                .collect();
             chosen = Some(coeffs);
         }
         models.insert(model.name().to_string(), r);
@@ -524,6 +551,7 @@ fn fit_and_report(
         median: report_chosen.median.clone(),
         mad: report_chosen.mad.clone(),
         models,
+        by_run,
         noise_floor: NoiseReport {
             step: noise.step.share(),
             interval: noise.interval.share(),
@@ -587,6 +615,31 @@ impl ModelReport {
             share_within_10pct: share,
             median,
             mad,
+        }
+    }
+}
+
+/// The interval statistics of one run (scene) of the campaign: the fit of all runs scored on it, and
+/// the fit without it.
+#[derive(Clone, Debug, Serialize)]
+pub struct RunScores {
+    /// What the run recorded (as in the provenance's scene list).
+    pub scene: String,
+    /// Block shares of each interval within 10 %, the fit of all runs.
+    pub interval_in_sample: f64,
+    /// The same, fitted without this run.
+    pub interval_held_out: f64,
+    /// Predicted at the interval's start, fitted without this run.
+    pub interval_predictive: f64,
+}
+
+impl RunScores {
+    fn of(scene: String, in_sample: &Scores, held: &Scores) -> Self {
+        RunScores {
+            scene,
+            interval_in_sample: in_sample.interval.share(),
+            interval_held_out: held.interval.share(),
+            interval_predictive: held.predictive.share(),
         }
     }
 }
@@ -794,6 +847,19 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         pct(r.noise_floor.step),
         pct(r.noise_floor.interval)
     );
+    if !r.by_run.is_empty() {
+        s += &format!("\nPer run ({} model): interval shares within 10 %\n\n", r.model);
+        s += "| run | in-sample | held out | predictive |\n|---|---:|---:|---:|\n";
+        for x in &r.by_run {
+            s += &format!(
+                "| {} | {} | {} | {} |\n",
+                x.scene,
+                pct(x.interval_in_sample),
+                pct(x.interval_held_out),
+                pct(x.interval_predictive)
+            );
+        }
+    }
     s += &if r.noise_floor.step_samples == 0 {
         "\nnoise floor: no block was timed on 10 consecutive steps with nothing changed\n".to_string()
     } else {

@@ -44,15 +44,15 @@ pub struct BalanceConfig {
     /// Steps per balancing / measurement interval.
     #[serde(default = "d_interval")]
     pub interval: u64,
-    /// Block weight: `"estimator"` (eq. 15 with `balance.coefficients`; default, the paper's method),
-    /// `"cells"` (fluid cells),
-    /// `"measured"` (the block's m_tot over the last interval), `"corrected"` (the estimate times the
-    /// smoothed measured/predicted ratio) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which never moves a
-    /// block) the blocks are redistributed with these weights at the end of every interval.
+    /// Block weight: `"corrected"` (default: eq. 15 with `balance.coefficients`, times the block's
+    /// smoothed measured/predicted ratio, the predictor–corrector of section 3.5), `"estimator"` (eq. 15
+    /// alone, the paper's method), `"cells"` (fluid cells), `"measured"` (the block's m_tot over the last
+    /// interval) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which
+    /// never moves a block) the blocks are redistributed with these weights at the end of every interval.
     #[serde(default)]
     pub weights: Weights,
     /// Coefficients file of the estimator (written by `blockflow calibrate`); used with
-    /// `weights = "estimator"`.
+    /// `weights = "estimator"` and `"corrected"`.
     #[serde(default = "d_coefficients")]
     pub coefficients: String,
     /// How the curve order is cut into processes: `"greedy"` (the paper's prefix split; default) or
@@ -102,14 +102,15 @@ pub enum SplitKind {
 pub enum Weights {
     /// Fluid cells (cells when the fluid is off).
     Cells,
-    /// The workload estimate of eq. (15) from the block's Table 1 quantities (the default: the
-    /// paper's method, with the built-in coefficients where the working folder has none).
-    #[default]
+    /// The workload estimate of eq. (15) from the block's Table 1 quantities (the paper's method, with
+    /// the built-in coefficients where the working folder has none).
     Estimator,
     /// The block's own measured m_tot over the last interval (cells for the initial assignment).
     Measured,
     /// The estimate scaled by the block's smoothed measured/predicted ratio (section 3.5; see
-    /// `estimator::weights`; the plain estimate for the initial assignment).
+    /// `estimator::weights`; the plain estimate for the initial assignment). The default: it follows
+    /// the particles as the estimate does and the blocks' own costs as measurements do.
+    #[default]
     Corrected,
     /// Every block weighs 1: equal block counts per process (the paper's uniform initial split).
     Uniform,
@@ -152,7 +153,7 @@ impl Default for BalanceConfig {
         BalanceConfig {
             strategy: Strategy::None,
             interval: d_interval(),
-            weights: Weights::Estimator,
+            weights: Weights::Corrected,
             coefficients: d_coefficients(),
             split: SplitKind::Greedy,
             flow_iterations: d_flow_iterations(),

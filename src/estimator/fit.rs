@@ -183,20 +183,30 @@ pub fn fit(samples: &[Sample], provenance: Provenance, model: Model, window: u64
 /// the counts summed over the runs. Empty scores with fewer than two distinct runs (nothing to hold out
 /// against).
 pub fn cross_validate(samples: &[Sample], model: Model, interval: u64) -> Scores {
+    let mut total = Scores::default();
+    for (_, sc) in cross_validate_by_run(samples, model, interval) {
+        total.add(&sc);
+    }
+    total
+}
+
+/// [`cross_validate`] per left-out run: (run, its held-out scores), in ascending run order; empty with
+/// fewer than two distinct runs.
+pub fn cross_validate_by_run(samples: &[Sample], model: Model, interval: u64) -> Vec<(usize, Scores)> {
     let mut runs: Vec<usize> = samples.iter().map(|s| s.run).collect();
     runs.sort_unstable();
     runs.dedup();
-    let mut total = Scores::default();
     if runs.len() < 2 {
-        return total;
+        return Vec::new();
     }
-    for r in runs {
-        let train: Vec<Sample> = samples.iter().filter(|s| s.run != r).copied().collect();
-        let test: Vec<Sample> = samples.iter().filter(|s| s.run == r).copied().collect();
-        let c = fit(&train, Provenance::default(), model, interval);
-        total.add(&score(&c, &test, interval));
-    }
-    total
+    runs.into_iter()
+        .map(|r| {
+            let train: Vec<Sample> = samples.iter().filter(|s| s.run != r).copied().collect();
+            let test: Vec<Sample> = samples.iter().filter(|s| s.run == r).copied().collect();
+            let c = fit(&train, Provenance::default(), model, interval);
+            (r, score(&c, &test, interval))
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -26,7 +26,7 @@ pub mod stats;
 pub mod weights;
 
 pub use coefficients::{Coefficients, Provenance};
-pub use fit::{cross_validate, fit};
+pub use fit::{cross_validate, cross_validate_by_run, fit};
 pub use model::Model;
 pub use quantities::Quantities;
 pub use stats::{evaluate, mad, median, noise_floor, score, Evaluation, Hits, NoiseFloor, PartStats, Scores};
