@@ -282,3 +282,25 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
     assert_eq!(code, 0, "{stderr}");
     assert!(run_out.join("summary.json").exists());
 }
+
+/// The default campaign run where its hopper scenes are not at hand stops at once with one line that
+/// names the missing file and the ways out, and exit code 1.
+#[test]
+fn default_campaign_without_its_scenes_is_a_one_line_error() {
+    let dir = tmp("calibrate-elsewhere");
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = format!("{}/configs/calibration.toml", env!("CARGO_MANIFEST_DIR"));
+    let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+        .current_dir(&dir)
+        .args(["calibrate", &scene, "--out", "cal"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("configs/hopper.toml") && err.contains("--calibration-only"),
+        "{err}"
+    );
+    assert!(!dir.join("cal").join("samples.csv").exists());
+}

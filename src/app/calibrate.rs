@@ -95,6 +95,11 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
     }
     let preset = !a.quick && !a.paper && a.samples.is_none() && a.block_sizes.is_empty() && a.diameters.is_empty();
     let with = if a.with.is_empty() && preset && !a.calibration_only {
+        if let Some(missing) = DEFAULT_WITH.iter().find(|p| !Path::new(p).exists()) {
+            return Err(Error::Config(format!(
+                "calibrate: the default campaign records {missing}, which is not in this folder; run from the repository root, name scenes with --with, or pass --calibration-only"
+            )));
+        }
         DEFAULT_WITH.iter().map(PathBuf::from).collect()
     } else {
         a.with
