@@ -158,14 +158,17 @@ impl Loopback {
             let kinds_agree = all.iter().all(|(k, _)| *k == all[0].0);
             r.result = Arc::new(all.into_iter().map(|(_, b)| b).collect());
             let result = r.result.clone();
+            let mismatch = (!kinds_agree).then(|| format!("the ranks called different collectives in round {round}"));
+            if let Some(m) = &mismatch {
+                // Recorded before the others wake, so each of them sees the abort when it checks.
+                self.record_abort(TransportError::Mismatch(m.clone()));
+            }
             g.wake.notify_all();
             drop(r);
-            if !kinds_agree {
-                let m = format!("the ranks called different collectives in round {round}");
-                self.abort_with(TransportError::Mismatch(m.clone()));
-                return Err(TransportError::Mismatch(m));
-            }
-            return Ok(result);
+            return match mismatch {
+                Some(m) => Err(TransportError::Mismatch(m)),
+                None => Ok(result),
+            };
         }
         while r.round == round {
             if g.aborted.load(Ordering::Acquire) {
@@ -186,6 +189,15 @@ impl Loopback {
     }
 
     fn abort_with(&self, e: TransportError) {
+        self.record_abort(e);
+        // Wake every rank waiting in a collective (they re-check the flag).
+        let g = &*self.group;
+        let _r = g.rendezvous.lock().expect("rendezvous");
+        g.wake.notify_all();
+    }
+
+    /// Sets the group's abort state (the first error is kept) without waking anyone.
+    fn record_abort(&self, e: TransportError) {
         let g = &*self.group;
         {
             let mut a = g.abort.lock().expect("abort state");
@@ -194,9 +206,6 @@ impl Loopback {
             }
         }
         g.aborted.store(true, Ordering::Release);
-        // Wake every rank waiting in a collective (they re-check the flag).
-        let _r = g.rendezvous.lock().expect("rendezvous");
-        g.wake.notify_all();
     }
 }
 
