@@ -290,9 +290,91 @@ pub fn moments<T: Real>(f: &[T; Q], force: [f64; 3]) -> (f64, [f64; 3]) {
     )
 }
 
+/// Cells [`moments_run`] handles at once.
+pub const MOMENTS_RUN: usize = 64;
+
+/// δρ and u (eq. 1 with the force correction, as [`moments`]) of up to [`MOMENTS_RUN`] consecutive cells.
+#[derive(Clone, Debug)]
+pub struct RunMoments {
+    /// Cells held.
+    pub len: usize,
+    /// δρ of each cell.
+    pub rho: [f64; MOMENTS_RUN],
+    /// u of each cell, one array per axis.
+    pub u: [[f64; MOMENTS_RUN]; 3],
+}
+
+impl Default for RunMoments {
+    fn default() -> Self {
+        RunMoments {
+            len: 0,
+            rho: [0.0; MOMENTS_RUN],
+            u: [[0.0; MOMENTS_RUN]; 3],
+        }
+    }
+}
+
+/// [`moments`] of `n ≤ MOMENTS_RUN` consecutive cells whose post-collision populations f*_q lie at
+/// `data[start[q]..start[q] + n]`, into `out`. Each cell gets the same operations in the same order as
+/// [`moments`], so the same bits; only the loops are exchanged (directions outside, cells inside), which
+/// turns 19 gathers per cell into 19 contiguous loads per run.
+pub fn moments_run<T: Real>(data: &[T], start: &[usize; Q], n: usize, force: [f64; 3], out: &mut RunMoments) {
+    assert!(n <= MOMENTS_RUN, "a run of {n} cells is longer than MOMENTS_RUN");
+    let (rho, u) = (&mut out.rho[..n], &mut out.u);
+    rho.fill(0.0);
+    for a in u.iter_mut() {
+        a[..n].fill(0.0);
+    }
+    for q in 0..Q {
+        let f = &data[start[q]..start[q] + n];
+        let c = C[q].map(|c| c as f64);
+        for (k, v) in f.iter().enumerate() {
+            let v = v.to_f64();
+            rho[k] += v;
+            u[0][k] += c[0] * v;
+            u[1][k] += c[1] * v;
+            u[2][k] += c[2] * v;
+        }
+    }
+    for (a, ua) in u.iter_mut().enumerate() {
+        for x in ua[..n].iter_mut() {
+            *x -= 0.5 * force[a];
+        }
+    }
+    out.len = n;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The run version gives the bits of the cell version, for every cell of a run (zeros, negative
+    /// zeros and a non-finite value included).
+    #[test]
+    fn moments_run_equals_moments() {
+        let n = 37;
+        let mut data = vec![0.0f64; Q * n];
+        let mut s = 12345u64;
+        for v in data.iter_mut() {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            *v = ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.1;
+        }
+        data[3] = -0.0;
+        data[5 * n + 7] = f64::INFINITY;
+        let start: [usize; Q] = std::array::from_fn(|q| q * n);
+        let force = [1e-5, -2e-5, 3e-6];
+        let mut out = RunMoments::default();
+        moments_run(&data, &start, n, force, &mut out);
+        assert_eq!(out.len, n);
+        for k in 0..n {
+            let cell: [f64; Q] = std::array::from_fn(|q| data[q * n + k]);
+            let (r, u) = moments(&cell, force);
+            assert_eq!(out.rho[k].to_bits(), r.to_bits(), "cell {k}");
+            for a in 0..3 {
+                assert_eq!(out.u[a][k].to_bits(), u[a].to_bits(), "cell {k}, axis {a}");
+            }
+        }
+    }
 
     fn collide_one(f: &[f64; Q], p: &TrtParams) -> [f64; Q] {
         let k = VConsts::<f64>::new(&p.consts::<f64>());

@@ -188,14 +188,10 @@ impl<T: Real> Simulation<T> {
 
     /// Calls `visit(global cell, δρ, u)` for every fluid cell of block `b` (held by this process), in
     /// x-fastest order.
-    pub fn for_each_fluid_of(&self, b: usize, mut visit: impl FnMut([usize; 3], f64, [f64; 3])) {
+    pub fn for_each_fluid_of(&self, b: usize, visit: impl FnMut([usize; 3], f64, [f64; 3])) {
         let force = self.params.force;
         let p = self.parity();
-        let blk = &self.blocks[b];
-        blk.for_each_fluid(|g, i| {
-            let (r, u) = fluid::cell_moments(blk, p, i, force);
-            visit(g, r, u);
-        });
+        fluid::for_each_fluid_moments(&self.blocks[b], p, force, visit);
     }
 
     /// The partial sums of block `b` (held by this process) for [`Diagnostics::combine`]: Σ δρ, Σ ½|u|²,
@@ -216,12 +212,30 @@ impl<T: Real> Simulation<T> {
     /// Mass, kinetic energy and the largest velocity of the fluid of the blocks this process holds (all
     /// of them but under ranks): per-block partial sums combined in block-id order.
     pub fn diagnostics(&self) -> Diagnostics {
-        Diagnostics::combine(
-            self.blocks
-                .iter()
-                .filter(|b| b.is_held())
-                .map(|b| self.block_diagnostics(b.id)),
-        )
+        self.diagnostics_on(1)
+    }
+
+    /// [`Simulation::diagnostics`] computed by `threads` threads, each summing a contiguous range of the
+    /// held blocks: the per-block sums are combined in block-id order as before, so the result has the
+    /// same bits for any thread count.
+    pub fn diagnostics_on(&self, threads: usize) -> Diagnostics {
+        let held: Vec<usize> = self.blocks.iter().filter(|b| b.is_held()).map(|b| b.id).collect();
+        let threads = threads.clamp(1, held.len().max(1));
+        if threads == 1 {
+            return Diagnostics::combine(held.iter().map(|&b| self.block_diagnostics(b)));
+        }
+        let per: Vec<Diagnostics> = std::thread::scope(|s| {
+            let chunk = held.len().div_ceil(threads);
+            let parts: Vec<_> = held
+                .chunks(chunk)
+                .map(|ids| s.spawn(move || ids.iter().map(|&b| self.block_diagnostics(b)).collect::<Vec<_>>()))
+                .collect();
+            parts
+                .into_iter()
+                .flat_map(|h| h.join().expect("a diagnostics thread panicked"))
+                .collect()
+        });
+        Diagnostics::combine(per.into_iter())
     }
 
     /// A hash of the exact bits of every fluid cell's 19 PDFs of the blocks this process holds (all but

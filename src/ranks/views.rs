@@ -42,10 +42,11 @@ pub fn bodies<T: Real>(world: &World, sim: &Simulation<T>) -> Result<Vec<Body>> 
     Ok(all)
 }
 
-/// The fluid's diagnostics ([`Simulation::diagnostics`]) of the whole domain, on every rank.
-pub fn diagnostics<T: Real>(world: &World, sim: &Simulation<T>) -> Result<Diagnostics> {
+/// The fluid's diagnostics ([`Simulation::diagnostics`]) of the whole domain, on every rank; a single
+/// rank sums its blocks on `threads` threads ([`Simulation::diagnostics_on`], the same bits).
+pub fn diagnostics<T: Real>(world: &World, sim: &Simulation<T>, threads: usize) -> Result<Diagnostics> {
     if world.is_single() {
-        return Ok(sim.diagnostics());
+        return Ok(sim.diagnostics_on(threads));
     }
     let mine = per_block(sim, |b| {
         let d = sim.block_diagnostics(b.id);

@@ -534,7 +534,13 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions, world: Arc<Worl
     }
     let start_step = tl.sim().step;
     let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
-    tl.add_observer(SeriesWriter::new(dir, tl.sim(), &world, series_every, steps)?);
+    // Threads of this driver: every virtual process's, or one rank's.
+    let threads = if cfg.processes.ranks > 1 {
+        cfg.processes.threads_per_process
+    } else {
+        cfg.processes.count * cfg.processes.threads_per_process
+    };
+    tl.add_observer(SeriesWriter::new(dir, tl.sim(), &world, series_every, steps, threads)?);
     let trajectory = TrajectoryRecorder::new(dir, tl.sim(), &world, scene.units)?.map(|r| tl.add_observer(r));
     if let Some(every) = plan.vtk_every {
         let w = VtkWriter::new(dir, tl.sim(), &world, every, cfg.run.vtk_encoding)?;

@@ -63,16 +63,25 @@ struct SeriesFiles {
 /// 0 writes them.
 pub struct SeriesWriter {
     every: u64,
+    threads: usize,
     end: u64,
     paths: (PathBuf, PathBuf),
     files: Option<SeriesFiles>,
 }
 
 impl SeriesWriter {
-    /// Creates the files in `dir` with the row of the current state.
-    pub fn new<T: Real>(dir: &Path, sim: &Simulation<T>, world: &World, every: u64, end: u64) -> Result<Self> {
+    /// Creates the files in `dir` with the row of the current state; the fluid's sums are taken on
+    /// `threads` threads (the run's, idle while the observers run).
+    pub fn new<T: Real>(
+        dir: &Path,
+        sim: &Simulation<T>,
+        world: &World,
+        every: u64,
+        end: u64,
+        threads: usize,
+    ) -> Result<Self> {
         let paths = (dir.join("series.csv"), dir.join("particles.csv"));
-        let d = views::diagnostics(world, sim)?;
+        let d = views::diagnostics(world, sim, threads)?;
         let row = particle_row(world, sim)?;
         let files = if world.is_root() {
             let mut fluid = Series::create(&partial(&paths.0))?;
@@ -91,6 +100,7 @@ impl SeriesWriter {
         };
         Ok(SeriesWriter {
             every,
+            threads,
             end,
             paths,
             files,
@@ -106,7 +116,7 @@ impl<T: Real> Observer<T> for SeriesWriter {
     fn at_stop(&mut self, cx: &RunContext<'_, T>) -> Result<Flow> {
         let s = cx.sim.step;
         if s.is_multiple_of(self.every) || s == self.end {
-            let d = views::diagnostics(cx.world, cx.sim)?;
+            let d = views::diagnostics(cx.world, cx.sim, self.threads)?;
             let row = particle_row(cx.world, cx.sim)?;
             if let Some(f) = self.files.as_mut() {
                 f.fluid.push(s, &d)?;
