@@ -235,7 +235,7 @@ impl<T: Real> Simulation<T> {
                 .flat_map(|h| h.join().expect("a diagnostics thread panicked"))
                 .collect()
         });
-        Diagnostics::combine(per.into_iter())
+        Diagnostics::combine(per)
     }
 
     /// A hash of the exact bits of every fluid cell's 19 PDFs of the blocks this process holds (all but
