@@ -31,6 +31,9 @@ pub struct LinkCell {
     pub cell: u32,
     /// Directions with a link, one bit per q.
     pub dirs: u32,
+    /// Directions q of `dirs` whose second cell x_f − c_q is fluid now (static fluid, not covered): the
+    /// links where the CLI of eq. (6) has its interpolation partner; one bit per q.
+    pub second_fluid: u32,
     /// Ghost-inclusive coordinates of the cell (`Layout::coords` of `cell`).
     pub xyz: [u32; 3],
 }

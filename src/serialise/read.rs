@@ -169,7 +169,13 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
             return Err(r.bad(format_args!("link cell with directions {dirs:#x}")).into());
         }
         let xyz = l.coords(cell as usize).map(|c| c as u32);
-        pc.link_cells.push(LinkCell { cell, dirs, xyz });
+        // `second_fluid` follows from the owners and the block's flags once the block is known.
+        pc.link_cells.push(LinkCell {
+            cell,
+            dirs,
+            second_fluid: 0,
+            xyz,
+        });
     }
     for list in [&mut pc.turned, &mut pc.covered] {
         let n = r.count(12)?;
@@ -467,6 +473,10 @@ pub unsafe fn decode_block<T: Real>(sim: &Simulation<T>, id: usize, bytes: &[u8]
     if let Some(o) = other {
         blk.replace_field(1 - p, o);
     }
+    let overlay = overlay.map(|mut pc| {
+        crate::physics::coupling::mapping::derive_second_fluid(blk, &mut pc);
+        pc
+    });
     blk.replace_particle_cells(overlay);
     if let (Some(parts), Some((list, work))) = (&sim.particles, particle) {
         let pb = &parts.blocks[id];

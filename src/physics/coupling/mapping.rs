@@ -185,6 +185,26 @@ fn fill_sphere<T: Real>(
     visited
 }
 
+/// Sets [`LinkCell::second_fluid`] of every link cell of `pc` from its owners and the block's flags: what
+/// the mapping derives from bit rows, for an overlay read back from bytes.
+pub fn derive_second_fluid<T: Real>(b: &Block<T>, pc: &mut ParticleCells) {
+    let l = b.layout;
+    let owner = &pc.owner;
+    let fluid_now = |i: usize| b.flags[i] & flags::FLUID != 0 && owner.get(i).is_none_or(|&o| o == 0);
+    for lc in pc.link_cells.iter_mut() {
+        let mut dirs = lc.dirs;
+        let mut second = 0;
+        while dirs != 0 {
+            let q = dirs.trailing_zeros() as usize;
+            dirs &= dirs - 1;
+            if fluid_now((lc.cell as isize - l.offset(C[q])) as usize) {
+                second |= 1 << q;
+            }
+        }
+        lc.second_fluid = second;
+    }
+}
+
 /// The covered cells of an owner array as bit rows.
 fn occupied_of(owner: &[u64], l: &blockflow_kernels::Layout, full: [usize; 3]) -> CellBits {
     let mut occ = CellBits::new(full);
@@ -284,6 +304,8 @@ fn rows<T: Real>(
     pc.covered.clear();
     let words = occ.words;
     let mut masks = vec![[0u64; Q]; words];
+    // Per word and direction: the link cells whose second cell x − c_q is fluid now.
+    let mut seconds = vec![[0u64; Q]; words];
     // Rows with a covered cell: only rows next to one can have links.
     let row_cov: Vec<bool> = (0..fz)
         .flat_map(|z| (0..fy).map(move |y| (y, z)))
@@ -320,7 +342,7 @@ fn rows<T: Real>(
             let covered_row = (0..words).any(|w| occ.row(y, z)[w] & interior_mask(fx, w) != 0);
             let check_links = around(&row_cov, y, z);
             let mut linked = false;
-            for (w, mask) in masks.iter_mut().enumerate() {
+            for (w, (mask, second)) in masks.iter_mut().zip(seconds.iter_mut()).enumerate() {
                 let im = interior_mask(fx, w);
                 let fl = st.fluid.row(y, z)[w] & im;
                 let cov = occ.row(y, z)[w] & im;
@@ -347,6 +369,13 @@ fn rows<T: Real>(
                     let m = occ.shifted(ny, nz, w, c[0]) & now;
                     mask[q] = m;
                     any |= m;
+                    if m != 0 {
+                        let (sy, sz) = ((y as i64 - c[1] as i64) as usize, (z as i64 - c[2] as i64) as usize);
+                        let fluid_now = st.fluid.shifted(sy, sz, w, -c[0]) & !occ.shifted(sy, sz, w, -c[0]);
+                        second[q] = m & fluid_now;
+                    } else {
+                        second[q] = 0;
+                    }
                 }
                 mask[0] = any;
                 linked |= any != 0;
@@ -359,14 +388,15 @@ fn rows<T: Real>(
                 pc.segments.extend_from_slice(&b.segments[a..e]);
             }
             if linked {
-                for (w, m) in masks.iter().enumerate() {
+                for (w, (m, sm)) in masks.iter().zip(&seconds).enumerate() {
                     for x in bit_cells(m[0], w) {
                         let bit = 1u64 << (x % 64);
                         // The cell's directions: bit x % 64 of every direction's mask.
-                        let dirs = (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
+                        let gather = |m: &[u64; Q]| (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
                         pc.link_cells.push(LinkCell {
                             cell: (base + x) as u32,
-                            dirs,
+                            dirs: gather(m),
+                            second_fluid: gather(sm),
                             xyz: [x as u32, y as u32, z as u32],
                         });
                         counts[2] += 1;

@@ -9,7 +9,6 @@ use super::min_image;
 use crate::config::SurfaceBoundary;
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
-use crate::physics::geometry::flags;
 use crate::physics::particle_cells::{BodyForce, ParticleCells};
 use crate::util::prefetch::prefetch;
 use blockflow_kernels::coupling::{link_torque, momentum_exchange, RHO0};
@@ -49,7 +48,6 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
     let offs: [isize; Q] = std::array::from_fn(|q| l.offset(C[q]));
     let cli_wanted = mode == SurfaceBoundary::Cli;
     let (owner, bodies) = (&pc.owner, &pc.bodies);
-    let is_fluid = |i: usize| b.flags[i] & flags::FLUID != 0 && owner[i] == 0;
     let batch = &mut *pc.link_batch;
     batch.len = 0;
     // Per link of the batch: direction, covered cell, body slot.
@@ -83,14 +81,14 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
             while dirs != 0 {
                 let q = dirs.trailing_zeros() as usize;
                 dirs &= dirs - 1;
-                let (solid, second) = ((i as isize + offs[q]) as usize, (i as isize - offs[q]) as usize);
+                let solid = (i as isize + offs[q]) as usize;
                 prefetch(data.add(sl.at(q, i)));
-                prefetch(data.add(sl.at(OPP[q], i)));
-                prefetch(data.add(sl.at(q, second)));
                 prefetch(data.add(sl.at(OPP[q], solid)));
                 prefetch(owner.as_ptr().add(solid));
-                prefetch(owner.as_ptr().add(second));
-                prefetch(b.flags.as_ptr().add(second));
+                if cli_wanted && ahead.second_fluid & (1 << q) != 0 {
+                    prefetch(data.add(sl.at(OPP[q], i)));
+                    prefetch(data.add(sl.at(q, (i as isize - offs[q]) as usize)));
+                }
             }
         }
         let i = lc.cell as usize;
@@ -116,7 +114,7 @@ pub unsafe fn boundary<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleC
             };
             let m = &bodies[k];
             let second = (i as isize - offs[q]) as usize;
-            let cli = cli_wanted && is_fluid(second);
+            let cli = cli_wanted && lc.second_fluid & (1 << q) != 0;
             let n = batch.len;
             // Offset of the fluid cell centre from the body centre, nearest image.
             batch.rel[0][n] = min_image(xc[0] - m.position.x, cells_f[0], d.periodic[0]);
