@@ -392,7 +392,8 @@ fn rows<T: Real>(
                     for x in bit_cells(m[0], w) {
                         let bit = 1u64 << (x % 64);
                         // The cell's directions: bit x % 64 of every direction's mask.
-                        let gather = |m: &[u64; Q]| (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
+                        let gather =
+                            |m: &[u64; Q]| (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
                         pc.link_cells.push(LinkCell {
                             cell: (base + x) as u32,
                             dirs: gather(m),
