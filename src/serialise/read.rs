@@ -262,6 +262,7 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         contacts_step: r.u64()?,
         seen_step: r.u64()?,
         scanned_step: r.u64()?,
+        shadow_scratch: Vec::new(),
     };
     r.finish()?;
     Ok(w)

@@ -126,6 +126,23 @@ pub struct Work {
     /// Entries of the neighbours' published lists read while gathering locals and shadows, summed over
     /// the sub-steps of the current (or last finished) step.
     pub scanned_step: u64,
+    /// Working memory of `rb`'s gather (the shadows found, before sorting), kept between sub-steps so
+    /// that no sub-step allocates it again; empty between tasks.
+    pub shadow_scratch: Vec<ShadowRef>,
+}
+
+/// A shadow found by `rb`'s gather: body `id` at `position` (its centre shifted into the block's periodic
+/// frame), entry `index` of the published list of neighbour `k` (index into the block's neighbours).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ShadowRef {
+    /// Body id.
+    pub id: u64,
+    /// Neighbour index.
+    pub k: u32,
+    /// Entry in that neighbour's published list.
+    pub index: u32,
+    /// Shifted centre.
+    pub position: DVec3,
 }
 
 /// Rigid-body state of one block.

@@ -26,7 +26,7 @@
 //! `rb_sync(b, g)`; `rb_sync(b, g+2)` overwrites the list `rb(n, g+1)` read, and it waits for
 //! `rb(b, g+2)`, which waits for `rb_sync(n, g+1)`, which waits for `rb(n, g+1)`.
 
-use super::{dist_to_box, Delta, OwnedImpulse, Particles, PLANE_KEY};
+use super::{dist_to_box, Delta, OwnedImpulse, Particles, ShadowRef, PLANE_KEY};
 use blockflow_kernels::rigid::{
     apply_forces, detect, integrate_positions, resolve_impulses, resolve_impulses_warm, resolve_targets, Body, Contact,
     Plane, WarmStart,
@@ -46,13 +46,14 @@ impl Particles {
         // One pass over the neighbours' lists: a body whose home is b is a local (taken once, unshifted,
         // from its block's first entry), every copy within the halo but the unshifted one of a local is a
         // shadow; locals sorted by id, shadows by (id, neighbour), so the order does not depend on the pass.
-        let mut shadows = Vec::new();
+        let mut shadows = std::mem::take(&mut w.shadow_scratch);
+        shadows.clear();
         let mut scanned = 0u64;
         for (k, nb) in blk.neighbours.iter().enumerate() {
             let pb = self.blocks[nb.block].published(prev);
             scanned += pb.bodies.len() as u64;
             let unshifted = nb.shift == glam::DVec3::ZERO;
-            for (body, &h) in pb.bodies.iter().zip(&pb.homes) {
+            for (i, (body, &h)) in pb.bodies.iter().zip(&pb.homes).enumerate() {
                 let local = h as usize == b;
                 if local && nb.first {
                     w.bodies.push(*body);
@@ -62,18 +63,26 @@ impl Particles {
                 }
                 let position = body.position + nb.shift;
                 if dist_to_box(position, blk.lo, blk.hi) <= body.radius + self.halo {
-                    shadows.push((body.id, k, position, body));
+                    shadows.push(ShadowRef {
+                        id: body.id,
+                        k: k as u32,
+                        index: i as u32,
+                        position,
+                    });
                 }
             }
         }
         w.bodies.sort_unstable_by_key(|x| x.id);
         w.locals = w.bodies.len();
-        shadows.sort_unstable_by_key(|s| (s.0, s.1));
-        w.bodies.extend(shadows.into_iter().map(|(_, _, position, body)| {
-            let mut c = *body;
-            c.position = position;
+        shadows.sort_unstable_by_key(|s| (s.id, s.k));
+        w.bodies.extend(shadows.iter().map(|s| {
+            let nb = &blk.neighbours[s.k as usize];
+            let mut c = self.blocks[nb.block].published(prev).bodies[s.index as usize];
+            c.position = s.position;
             c
         }));
+        shadows.clear();
+        w.shadow_scratch = shadows;
         let dt = self.dt_sub();
         let round = ((g - 1) % self.rounds as u64) as usize;
         if round > 0 {
@@ -175,11 +184,15 @@ impl Particles {
         initial: Option<&[glam::DVec3]>,
     ) {
         let locals = w.locals;
+        w.owned.clear();
+        if contacts.iter().all(|c| c.a >= locals) {
+            // No contact is b's: no velocity change, no owned impulse (and no scratch to allocate).
+            return;
+        }
         let n = w.bodies.len();
         let mut dv = vec![glam::DVec3::ZERO; n];
         let mut dw = vec![glam::DVec3::ZERO; n];
         let mut touched = vec![false; n];
-        w.owned.clear();
         for (k, (c, total)) in contacts.iter().zip(impulses).enumerate() {
             // Owned: the lower-id body (a) or the sphere of a plane contact is local.
             if c.a >= locals {
