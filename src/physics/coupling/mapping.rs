@@ -362,23 +362,7 @@ fn rows<T: Real>(
                 if !check_links {
                     continue;
                 }
-                let mut any = 0;
-                for (q, c) in C.iter().enumerate().skip(1) {
-                    let ny = (y as i64 + c[1] as i64) as usize;
-                    let nz = (z as i64 + c[2] as i64) as usize;
-                    let m = occ.shifted(ny, nz, w, c[0]) & now;
-                    mask[q] = m;
-                    any |= m;
-                    if m != 0 {
-                        let (sy, sz) = ((y as i64 - c[1] as i64) as usize, (z as i64 - c[2] as i64) as usize);
-                        let fluid_now = st.fluid.shifted(sy, sz, w, -c[0]) & !occ.shifted(sy, sz, w, -c[0]);
-                        second[q] = m & fluid_now;
-                    } else {
-                        second[q] = 0;
-                    }
-                }
-                mask[0] = any;
-                linked |= any != 0;
+                linked |= link_masks(&st.fluid, occ, [y, z, w], now, mask, second) != 0;
             }
             if covered_row {
                 let now = |w: usize| st.fluid.row(y, z)[w] & interior_mask(fx, w) & !occ.row(y, z)[w];
@@ -429,6 +413,35 @@ fn rows<T: Real>(
     pc.spare.link_cells = prev_links;
     pc.spare.index = prev_index;
     derived
+}
+
+/// The link masks of word `w` of row (y, z) whose cells fluid now are `now`: bit x of `mask[q]` is set when
+/// cell x + c_q is covered (a link), bit x of `second[q]` when that link's second cell x − c_q is fluid
+/// now (static `fluid` and not covered); `mask[0]` gets the union of the links, which is also returned.
+fn link_masks(
+    fluid: &CellBits,
+    occ: &CellBits,
+    [y, z, w]: [usize; 3],
+    now: u64,
+    mask: &mut [u64; Q],
+    second: &mut [u64; Q],
+) -> u64 {
+    let mut any = 0;
+    for (q, c) in C.iter().enumerate().skip(1) {
+        let ny = (y as i64 + c[1] as i64) as usize;
+        let nz = (z as i64 + c[2] as i64) as usize;
+        let m = occ.shifted(ny, nz, w, c[0]) & now;
+        mask[q] = m;
+        any |= m;
+        second[q] = if m != 0 {
+            let (sy, sz) = ((y as i64 - c[1] as i64) as usize, (z as i64 - c[2] as i64) as usize);
+            m & fluid.shifted(sy, sz, w, -c[0]) & !occ.shifted(sy, sz, w, -c[0])
+        } else {
+            0
+        };
+    }
+    mask[0] = any;
+    any
 }
 
 /// Appends the entries of the previous mapping's `rows` (consecutive interior rows) to the new lists and
