@@ -206,6 +206,19 @@ fn bad_particle_settings_name_their_key() {
     fails_cleanly(&gb, &["--set", "particles.subcycles=0"], &["particles.subcycles"]);
     fails_cleanly(&gb, &["--set", "particles.rounds=0"], &["particles.rounds"]);
     fails_cleanly(&gb, &["--set", "particles.rounds=13"], &["particles.rounds", "255"]);
+    let jacobi = ["--set", "particles.solver=\"jacobi\""];
+    fails_cleanly(
+        &gb,
+        &[&jacobi[..], &["--set", "particles.rounds=2"]].concat(),
+        &["particles.rounds", "jacobi"],
+    );
+    fails_cleanly(
+        &gb,
+        &[&jacobi[..], &["--set", "particles.iterations=20"]].concat(),
+        &["particles.iterations", "255"],
+    );
+    fails_cleanly(&gb, &["--set", "particles.warm_start=1.5"], &["particles.warm_start"]);
+    fails_cleanly(&gb, &["--set", "particles.solver=\"gauss\""], &["gauss"]);
     fails_cleanly(&gb, &["--set", "particles.restitution=1.5"], &["particles.restitution"]);
     fails_cleanly(&gb, &["--set", "particles.friction=-1"], &["particles.friction"]);
     fails_cleanly(&gb, &["--set", "particles.relaxation=2"], &["particles.relaxation"]);

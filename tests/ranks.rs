@@ -77,7 +77,15 @@ fn fluid_scenes_on_ranks_equal_the_serial_loop() {
 
 #[test]
 fn particulate_scenes_on_ranks_equal_one_process() {
-    let scenes: [(&str, &[&str], u64); 2] = [("hopper-small.toml", &[], 60), ("granular_box.toml", &[], 80)];
+    let scenes: [(&str, &[&str], u64); 3] = [
+        ("hopper-small.toml", &[], 60),
+        ("granular_box.toml", &[], 80),
+        (
+            "granular_box.toml",
+            &["particles.solver=\"jacobi\"", "particles.iterations=4"],
+            80,
+        ),
+    ];
     for (file, sets, steps) in scenes {
         let c = cfg(file, sets);
         let mut tl = timeloop_of(&c);

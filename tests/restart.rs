@@ -158,6 +158,21 @@ fn restart_is_bitwise_granular_box_with_rounds() {
     );
 }
 
+/// With the Jacobi solver the state between steps also holds every contact's last impulse (the next
+/// sub-step's warm start); the block format carries it, so a restart on another P continues bitwise
+/// (at step 120 of the pour, when about 70 contacts touch).
+#[test]
+fn restart_is_bitwise_granular_box_with_jacobi() {
+    restart_matches(
+        "granular-jacobi",
+        "granular_box.toml",
+        &["particles.solver=\"jacobi\"", "particles.iterations=5"],
+        240,
+        &["--processes", "1"],
+        &["--processes", "3", "--balance", "hilbert", "--interval", "7"],
+    );
+}
+
 /// The blocks of a checkpoint are per block: the same bytes whatever P wrote them; the balancing state
 /// of `corrected` weights travels with the file.
 #[test]

@@ -19,7 +19,7 @@ pub use balance::{
 pub use domain::DomainConfig;
 pub use fluid::{FluidConfig, KernelChoice, Precision, Streaming};
 pub use parse::{apply_override, load, parse, parse_table};
-pub use particles::{ParticlesConfig, Refill, SurfaceBoundary};
+pub use particles::{ContactSolver, ParticlesConfig, Refill, SurfaceBoundary};
 pub use processes::{PinConfig, ProcessesConfig, StealConfig};
 pub use run::{RunConfig, VtkEncoding, DEFAULT_KEPT};
 

@@ -27,9 +27,16 @@ pub struct ParticlesConfig {
     /// the sub-step instead of one sub-step late. 1: one solve per sub-step.
     #[serde(default = "d_rounds")]
     pub rounds: usize,
-    /// Relaxation ω of the Gauss–Seidel update, in (0, 2).
+    /// Relaxation ω of the Gauss–Seidel or Jacobi update, in (0, 2).
     #[serde(default = "d_relaxation")]
     pub relaxation: f64,
+    /// How the contacts of all blocks are solved: `"block_gauss_seidel"` (default) or `"jacobi"`.
+    #[serde(default)]
+    pub solver: ContactSolver,
+    /// With `solver = "jacobi"`: the share in [0, 1] of each contact's impulse of the previous
+    /// sub-step it starts from (0: from zero). Above about 0.9 a pile keeps bouncing.
+    #[serde(default = "d_warm_start")]
+    pub warm_start: f64,
     /// Body count (locals + shadows of a block) from which detection uses the hash grid, not all pairs.
     #[serde(default = "d_grid_threshold")]
     pub grid_threshold: usize,
@@ -88,6 +95,9 @@ fn d_rounds() -> usize {
 fn d_relaxation() -> f64 {
     1.0
 }
+fn d_warm_start() -> f64 {
+    0.8
+}
 fn d_grid_threshold() -> usize {
     128
 }
@@ -104,6 +114,8 @@ impl Default for ParticlesConfig {
             iterations: d_iterations(),
             rounds: d_rounds(),
             relaxation: d_relaxation(),
+            solver: ContactSolver::default(),
+            warm_start: d_warm_start(),
             grid_threshold: d_grid_threshold(),
             contact_margin: 0.0,
             position_correction: d_position_correction(),
@@ -134,6 +146,29 @@ impl ParticlesConfig {
                 "particles.rounds = {}: must be at least 1, with particles.subcycles × rounds at most 255 ({} here)",
                 p.rounds,
                 p.subcycles * p.rounds
+            ));
+        }
+        if p.solver == ContactSolver::Jacobi {
+            if p.rounds != 1 {
+                return config_err(format!(
+                    "particles.rounds = {}: the jacobi solver exchanges velocities after every sweep; remove the \
+                     key (rounds apply to solver = \"block_gauss_seidel\")",
+                    p.rounds
+                ));
+            }
+            if p.subcycles * (p.iterations + 1) > 255 {
+                return config_err(format!(
+                    "particles.iterations = {}: with solver = \"jacobi\", particles.subcycles × (iterations + 1) \
+                     must be at most 255 ({} here)",
+                    p.iterations,
+                    p.subcycles * (p.iterations + 1)
+                ));
+            }
+        }
+        if !((0.0..=1.0).contains(&p.warm_start)) {
+            return config_err(format!(
+                "particles.warm_start = {}: must be between 0 and 1",
+                p.warm_start
             ));
         }
         if p.iterations == 0 || p.iterations > 100_000 {
@@ -186,6 +221,22 @@ impl ParticlesConfig {
         }
         Ok(())
     }
+}
+
+/// How the hard contacts of all blocks are solved (`particles.solver`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContactSolver {
+    /// Each block solves every contact it sees by projected Gauss–Seidel from zero impulses and keeps
+    /// those it owns; blocks are coupled block-Jacobi once per round (`particles.rounds`). The result
+    /// depends on how the domain is cut into blocks.
+    #[default]
+    BlockGaussSeidel,
+    /// Projected Jacobi with mass splitting over all contacts, warm-started from the previous sub-step
+    /// (`particles.warm_start`): every sweep (`particles.iterations` per sub-step) is one round, after
+    /// which each block publishes its bodies' velocities. The result does not depend on the block
+    /// layout (bitwise in a box without periodic axes, to rounding across periodic faces).
+    Jacobi,
 }
 
 /// How a cell a body uncovers is given its populations (`particles.refill`).

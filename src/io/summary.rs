@@ -238,7 +238,9 @@ pub struct ParticleSummary {
     pub bodies: usize,
     /// Sub-steps per step.
     pub subcycles: usize,
-    /// Rounds of the contact solve per sub-step.
+    /// How the contacts are solved (`particles.solver`).
+    pub solver: crate::config::ContactSolver,
+    /// Rounds of the contact solve per sub-step (with the Jacobi solver: one per sweep plus the set-up).
     pub rounds: usize,
     /// Sub-steps taken.
     pub substeps: u64,

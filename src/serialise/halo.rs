@@ -1,5 +1,5 @@
 //! The particle state of a block that crosses ranks, in the codec of the block format: its published
-//! list (bodies, home blocks and, with `particles.rounds` > 1, its owned contacts' impulses), the
+//! list (bodies, home blocks, contact impulses and counts, as in the block format), the
 //! velocity changes of its last rigid-body task and the body forces of its last boundary pass. A rank
 //! keeps copies of these for the blocks of other ranks next to its own, and the bytes carry the exact
 //! bits, so a copy reads as the original.
@@ -8,34 +8,18 @@ use super::read::{read_listed, BlockReader};
 use super::write::{put_body, put_body_force, put_count, put_v3, write_bodies};
 use super::FormatError;
 use crate::physics::particle_cells::BodyForce;
-use crate::physics::particles::{Delta, OwnedImpulse, Published};
+use crate::physics::particles::{Delta, Published};
 use crate::util::bytes::{put_u64, Reader};
 use blockflow_kernels::rigid::Body;
 
 /// Appends a published list.
 pub fn encode_published(list: &Published, out: &mut Vec<u8>) {
     write_bodies(out, list);
-    put_count(out, list.owned.len());
-    for o in &list.owned {
-        put_u64(out, o.a);
-        put_u64(out, o.b);
-        put_v3(out, o.impulse);
-    }
 }
 
 /// Reads a published list of [`encode_published`] (home blocks below `blocks`).
 pub fn decode_published(r: &mut Reader, blocks: usize) -> Result<Published, FormatError> {
-    let mut list = read_listed(r, blocks)?;
-    let n = r.count(40)?;
-    list.owned.reserve(n);
-    for _ in 0..n {
-        list.owned.push(OwnedImpulse {
-            a: r.u64()?,
-            b: r.u64()?,
-            impulse: r.v3()?,
-        });
-    }
-    Ok(list)
+    read_listed(r, blocks)
 }
 
 /// Appends bodies (every field).
@@ -101,6 +85,7 @@ pub fn decode_forces(r: &mut Reader) -> Result<Vec<BodyForce>, FormatError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::physics::particles::OwnedImpulse;
     use glam::DVec3;
 
     #[test]
@@ -116,6 +101,7 @@ mod tests {
                 b: crate::physics::particles::PLANE_KEY | 2,
                 impulse: DVec3::new(-1.0, 0.5, 1e-300),
             }],
+            counts: vec![2, 0],
         };
         let deltas = vec![Delta {
             id: 9,

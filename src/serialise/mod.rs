@@ -46,7 +46,11 @@
 //!   history `force_prev`/`torque_prev` included) and its home block (u32). These are the block's local
 //!   bodies (a body that just crossed a face is published by its old home, which is where the next
 //!   sub-step looks for it). Each body lives in exactly one block's list, so the lists of all blocks
-//!   together are all bodies.
+//!   together are all bodies. Then the list's contact impulses ([`OwnedImpulse`]: count, then a u64,
+//!   b u64 and the impulse per entry; after a step they are the Jacobi solver's warm start of the next
+//!   sub-step) and its contact counts (count, then u32 each; empty between sub-steps).
+//!
+//! [`OwnedImpulse`]: crate::physics::particles::OwnedImpulse
 //! - `particle_state` (with particles): the block's last rigid-body result ([`Work`]): local and shadow
 //!   bodies, velocity changes, and the contact and gather counters (K and the rigid-body regressors of the
 //!   estimator, statistics for the summary).
@@ -70,7 +74,7 @@ pub use read::decode_block;
 pub use write::{encode_block, encoded_len};
 
 /// Version of the block format written by [`encode_block`]; the decoder accepts only this one.
-pub const BLOCK_FORMAT_VERSION: u32 = 3;
+pub const BLOCK_FORMAT_VERSION: u32 = 4;
 /// First bytes of every encoded block.
 pub const MAGIC: [u8; 5] = *b"BFBLK";
 /// Bytes of the fixed header (before the section table).

@@ -5,7 +5,7 @@ use super::{
     PARTICLE_STATE, PDF,
 };
 use crate::physics::particle_cells::{BodyForce, LinkCell, MapBody, MapWork, ParticleCells};
-use crate::physics::particles::{Delta, Published, Work};
+use crate::physics::particles::{Delta, OwnedImpulse, Published, Work};
 use crate::physics::simulation::Simulation;
 use crate::util::bytes::{ReadError, Reader};
 use blockflow_kernels::d3q19::Q;
@@ -214,6 +214,7 @@ pub(super) fn read_listed(r: &mut Reader, blocks: usize) -> Result<Published, Fo
         bodies: Vec::with_capacity(n),
         homes: Vec::with_capacity(n),
         owned: Vec::new(),
+        counts: Vec::new(),
     };
     for _ in 0..n {
         list.bodies.push(r.body()?);
@@ -223,7 +224,29 @@ pub(super) fn read_listed(r: &mut Reader, blocks: usize) -> Result<Published, Fo
         }
         list.homes.push(h);
     }
+    list.owned = read_list(r, 40, |r| {
+        Ok(OwnedImpulse {
+            a: r.u64()?,
+            b: r.u64()?,
+            impulse: r.v3()?,
+        })
+    })?;
+    list.counts = read_list(r, 4, |r| r.u32())?;
     Ok(list)
+}
+
+/// A count, then that many items of at least `bytes` bytes each, read by `item`.
+fn read_list<T>(
+    r: &mut Reader,
+    bytes: usize,
+    mut item: impl FnMut(&mut Reader) -> Result<T, ReadError>,
+) -> Result<Vec<T>, FormatError> {
+    let n = r.count(bytes)?;
+    let mut v = Vec::with_capacity(n);
+    for _ in 0..n {
+        v.push(item(r)?);
+    }
+    Ok(v)
 }
 
 fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
@@ -255,6 +278,8 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         targets: Vec::new(),
         solved: Vec::new(),
         owned: Vec::new(),
+        origins: Vec::new(),
+        jacobi: Default::default(),
         contacts: r.u64()? as usize,
         max_penetration: r.f64()?,
         contacts_total: r.u64()?,
@@ -263,6 +288,7 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         seen_step: r.u64()?,
         scanned_step: r.u64()?,
         shadow_scratch: Vec::new(),
+        local_scratch: Vec::new(),
     };
     r.finish()?;
     Ok(w)

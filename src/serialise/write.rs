@@ -177,6 +177,16 @@ pub(super) fn write_bodies(s: &mut impl Sink, list: &Published) {
         put_body(s, b);
         put_u32(s, h);
     }
+    put_count(s, list.owned.len());
+    for o in &list.owned {
+        put_u64(s, o.a);
+        put_u64(s, o.b);
+        put_v3(s, o.impulse);
+    }
+    put_count(s, list.counts.len());
+    for &n in &list.counts {
+        put_u32(s, n);
+    }
 }
 
 fn write_work(s: &mut impl Sink, w: &Work) {

@@ -3,7 +3,7 @@
 //! initial assignment by `balance.weights`.
 
 use crate::balance::{self, weights};
-use crate::config::{Config, PinConfig, StealConfig, Weights, DEFAULT_COEFFICIENTS};
+use crate::config::{Config, ContactSolver, PinConfig, StealConfig, Weights, DEFAULT_COEFFICIENTS};
 use crate::error::{Error, Result};
 use crate::estimator::coefficients::BUILT_IN_COEFFICIENTS;
 use crate::estimator::Coefficients;
@@ -94,7 +94,10 @@ pub fn build_particles(cfg: &Config, ps: &ParticleScene, domain: DomainSpec) -> 
         c.subcycles,
         c.dt.unwrap_or(ps.dt),
     )
-    .map(|p| p.with_rounds(c.rounds))
+    .map(|p| match c.solver {
+        ContactSolver::BlockGaussSeidel => p.with_rounds(c.rounds),
+        ContactSolver::Jacobi => p.with_jacobi(c.warm_start),
+    })
 }
 
 /// The pinning policy of a configuration.

@@ -27,28 +27,64 @@ pub struct SolverStats {
 
 /// One contact's constraint rows, with the inverse masses and inertias of both bodies cached (zero for
 /// fixed bodies and planes, so the updates need no branches).
-struct Row {
-    ra: DVec3,
-    rb: DVec3,
-    im_a: f64,
-    ii_a: f64,
-    im_b: f64,
-    ii_b: f64,
-    k_n: f64,
-    k_t: f64,
-    target: f64,
-    lambda_n: f64,
-    lambda_t: DVec3,
+#[derive(Clone, Debug)]
+pub(super) struct Row {
+    pub(super) ra: DVec3,
+    pub(super) rb: DVec3,
+    pub(super) im_a: f64,
+    pub(super) ii_a: f64,
+    pub(super) im_b: f64,
+    pub(super) ii_b: f64,
+    pub(super) k_n: f64,
+    pub(super) k_t: f64,
+    pub(super) target: f64,
+    pub(super) lambda_n: f64,
+    pub(super) lambda_t: DVec3,
+}
+
+impl Row {
+    /// One projected update of the contact's rows at relative velocity `u` (normal `normal`), with
+    /// effective inverse masses `k_n` (normal) and `k_t` (tangential) and relaxation `w`; returns the
+    /// changes of the normal impulse and of the tangential impulse.
+    ///
+    /// Normal row: λ_n ← max(0, λ_n + ω (target − u_n) / K_n). Friction rows (2-D):
+    /// λ_t ← clamp_{|λ_t| ≤ μ λ_n}(λ_t − ω u_t / K_t). K_t is isotropic for spheres, and a normal impulse
+    /// leaves the tangential slip unchanged (r ∥ n), so u_t is taken from the same u and both impulses
+    /// are applied together.
+    pub(super) fn project(
+        &mut self,
+        u: DVec3,
+        normal: DVec3,
+        k_n: f64,
+        k_t: f64,
+        w: f64,
+        friction: f64,
+    ) -> (f64, DVec3) {
+        let un = u.dot(normal);
+        let new_n = (self.lambda_n + w * (self.target - un) / k_n).max(0.0);
+        let dn = new_n - self.lambda_n;
+        self.lambda_n = new_n;
+        let ut = u - normal * un;
+        let mut new_t = self.lambda_t - ut * (w / k_t);
+        let limit = friction * self.lambda_n;
+        let len = new_t.length();
+        if len > limit {
+            new_t *= if len > 0.0 { limit / len } else { 0.0 };
+        }
+        let dt_imp = new_t - self.lambda_t;
+        self.lambda_t = new_t;
+        (dn, dt_imp)
+    }
 }
 
 /// Translational and angular velocity of a body, the state the solver iterates on.
-#[derive(Clone, Copy)]
-struct Vel {
-    v: DVec3,
-    w: DVec3,
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Vel {
+    pub(super) v: DVec3,
+    pub(super) w: DVec3,
 }
 
-fn rel_velocity(vel: &[Vel], c: &Contact, row: &Row) -> DVec3 {
+pub(super) fn rel_velocity(vel: &[Vel], c: &Contact, row: &Row) -> DVec3 {
     let a = &vel[c.a];
     let mut u = a.v + a.w.cross(row.ra);
     if let Some(b) = c.b {
@@ -58,7 +94,7 @@ fn rel_velocity(vel: &[Vel], c: &Contact, row: &Row) -> DVec3 {
     u
 }
 
-fn apply(vel: &mut [Vel], c: &Contact, row: &Row, j: DVec3) {
+pub(super) fn apply(vel: &mut [Vel], c: &Contact, row: &Row, j: DVec3) {
     let a = &mut vel[c.a];
     a.v += j * row.im_a;
     a.w += row.ra.cross(j) * row.ii_a;
@@ -136,7 +172,7 @@ pub fn resolve_impulses_warm(
     solve(bodies, contacts, p, dt, Some(warm), impulses).0
 }
 
-fn velocities(bodies: &[Body]) -> Vec<Vel> {
+pub(super) fn velocities(bodies: &[Body]) -> Vec<Vel> {
     bodies
         .iter()
         .map(|b| Vel {
@@ -146,12 +182,12 @@ fn velocities(bodies: &[Body]) -> Vec<Vel> {
         .collect()
 }
 
-fn inverse_masses(bodies: &[Body]) -> Vec<(f64, f64)> {
+pub(super) fn inverse_masses(bodies: &[Body]) -> Vec<(f64, f64)> {
     bodies.iter().map(|b| (b.inv_mass(), b.inv_inertia())).collect()
 }
 
 /// The constraint rows of contact `c` at velocities `vel`, with zero impulses.
-fn row(bodies: &[Body], vel: &[Vel], inv: &[(f64, f64)], c: &Contact, p: &RigidParams, dt: f64) -> Row {
+pub(super) fn row(bodies: &[Body], vel: &[Vel], inv: &[(f64, f64)], c: &Contact, p: &RigidParams, dt: f64) -> Row {
     let a = &bodies[c.a];
     let ra = c.point - a.position;
     let (im_a, ii_a) = inv[c.a];
@@ -232,23 +268,9 @@ fn solve(
             }
             // Normal row: λ_n ← max(0, λ_n + ω (target − u_n) / K_n).
             let u = rel_velocity(&vel, c, row);
-            let un = u.dot(c.normal);
-            let new_n = (row.lambda_n + w * (row.target - un) / row.k_n).max(0.0);
-            let dn = new_n - row.lambda_n;
-            row.lambda_n = new_n;
+            let (k_n, k_t) = (row.k_n, row.k_t);
+            let (dn, dt_imp) = row.project(u, c.normal, k_n, k_t, w, p.friction);
             change = change.max(dn.abs());
-            // Friction rows (2-D): λ_t ← clamp_{|λ_t| ≤ μ λ_n}(λ_t − ω u_t / K_t). K_t is isotropic for spheres,
-            // and a normal impulse leaves the tangential slip unchanged (r ∥ n), so u_t is taken from the same
-            // u and both impulses are applied together.
-            let ut = u - c.normal * un;
-            let mut new_t = row.lambda_t - ut * (w / row.k_t);
-            let limit = p.friction * row.lambda_n;
-            let len = new_t.length();
-            if len > limit {
-                new_t *= if len > 0.0 { limit / len } else { 0.0 };
-            }
-            let dt_imp = new_t - row.lambda_t;
-            row.lambda_t = new_t;
             apply(&mut vel, c, row, c.normal * dn + dt_imp);
             change = change.max(dt_imp.length());
         }

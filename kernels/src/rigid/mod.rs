@@ -5,7 +5,8 @@
 //! 1. velocities += dt · (external force + gravity − buoyancy) / m, angular velocities += dt · T / I;
 //! 2. contact detection ([`detect`], all pairs or a hash grid), sorted by body ids;
 //! 3. contact resolution ([`resolve`], projected Gauss–Seidel over the contacts in that sorted order, with
-//!    non-penetration, restitution and the Coulomb cone);
+//!    non-penetration, restitution and the Coulomb cone; or [`JacobiSolve`], projected Jacobi with mass
+//!    splitting, whose result does not depend on how the bodies are distributed);
 //! 4. positions and orientations advanced with the new velocities.
 //!
 //! Everything is a pure function over plain data; no threads. Results do not depend on the order of the
@@ -16,11 +17,13 @@ pub mod body;
 pub mod contact;
 pub mod hard_contact;
 pub mod integrate;
+pub mod jacobi;
 
 pub use body::{Body, Plane};
 pub use contact::{detect, detect_all_pairs, detect_grid, Contact};
 pub use hard_contact::{resolve, resolve_impulses, resolve_impulses_warm, resolve_targets, SolverStats, WarmStart};
 pub use integrate::{apply_forces, integrate, integrate_positions};
+pub use jacobi::{apply_impulses, project_impulse, JacobiSolve};
 
 use glam::DVec3;
 

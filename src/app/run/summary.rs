@@ -62,6 +62,7 @@ pub fn fill<T: Real>(s: &mut Summary, tl: &TimeLoop<T>, cfg: &BalanceConfig, tas
     s.particles = sim.particles.as_ref().map(|p| ParticleSummary {
         bodies,
         subcycles: p.subcycles,
+        solver: p.solver,
         rounds: p.rounds,
         substeps: p.counters.substeps,
         contacts_per_substep: p.counters.contacts as f64 / p.counters.substeps.max(1) as f64,

@@ -22,13 +22,19 @@
 //!   sub-steps with fewer sweeps each (`particles.subcycles`, `particles.iterations`), or more rounds of
 //!   the solve inside each sub-step (`particles.rounds`: the velocity changes are exchanged between
 //!   rounds and the solve continues from the impulses so far), tighten it.
+//! - *Or a global iteration* (`particles.solver = "jacobi"`, [`jacobi`]): projected Jacobi with mass
+//!   splitting, one round per sweep. Every block updates its locals from all their contacts, computed
+//!   from the velocities every owner published after the last sweep, and sums them in contact (body id)
+//!   order: a body's new velocity is the same whichever block holds it and whatever the layout.
 //!
 //! Requirements checked at set-up and per sub-step: `2 r_max + contact_margin` plus the largest distance a
 //! body moves in one sub-step must stay below the smallest block edge, so that everything a block needs
 //! lives in its 26 neighbours.
 
+pub mod jacobi;
 pub mod tasks;
 
+use crate::config::ContactSolver;
 use crate::error::{config_err, Result};
 use crate::physics::domain::{DomainSpec, NEIGHBOURS};
 use crate::util::hash::mix;
@@ -85,9 +91,13 @@ pub struct Published {
     pub bodies: Vec<Body>,
     /// Home block of each body.
     pub homes: Vec<u32>,
-    /// Impulses of the contacts the block owns, sorted by (a, b); only with more than one round, and
-    /// read only inside a sub-step (so not part of the block format).
+    /// Impulses of the contacts the block owns, sorted by (a, b): with `particles.rounds` > 1 the
+    /// impulses so far of the current sub-step; with the Jacobi solver, after a sub-step's last sweep,
+    /// its final impulses (the next sub-step's warm start).
     pub owned: Vec<OwnedImpulse>,
+    /// With the Jacobi solver, in the list of a sub-step's first round only: the number of contacts of
+    /// each body (the mass splitting of every block that solves one of them).
+    pub counts: Vec<u32>,
 }
 
 /// What `rb(b, s)` computed for block b (read by `rb_sync` of b and its neighbours).
@@ -129,6 +139,13 @@ pub struct Work {
     /// Working memory of `rb`'s gather (the shadows found, before sorting), kept between sub-steps so
     /// that no sub-step allocates it again; empty between tasks.
     pub shadow_scratch: Vec<ShadowRef>,
+    /// The same for the locals found.
+    pub local_scratch: Vec<ShadowRef>,
+    /// Where each body of `bodies` was gathered from: (index into the block's neighbours, entry in that
+    /// neighbour's published list).
+    pub origins: Vec<(u32, u32)>,
+    /// With the Jacobi solver: the state of the current sub-step's solve (see [`jacobi`]).
+    pub jacobi: jacobi::JacobiWork,
 }
 
 /// A shadow found by `rb`'s gather: body `id` at `position` (its centre shifted into the block's periodic
@@ -244,7 +261,12 @@ pub struct Particles {
     pub subcycles: usize,
     /// Rounds of the contact solve per sub-step (`particles.rounds`): between rounds every block's
     /// velocity changes are summed and published, and the next round continues the solve from them.
+    /// With the Jacobi solver, one set-up round and one round per sweep.
     pub rounds: usize,
+    /// How the contacts are solved (`particles.solver`).
+    pub solver: ContactSolver,
+    /// Share of the previous sub-step's impulse a contact starts from (Jacobi solver).
+    pub warm_start: f64,
     /// Time per step (1 in lattice units; fluid-off scenes may choose another).
     pub dt: f64,
     /// Per-block state, in block id order.
@@ -333,6 +355,8 @@ impl Particles {
             params,
             subcycles,
             rounds: 1,
+            solver: ContactSolver::BlockGaussSeidel,
+            warm_start: 0.0,
             dt,
             blocks: Vec::new(),
             active: vec![false; nb],
@@ -359,6 +383,16 @@ impl Particles {
     /// The same bodies with `rounds` rounds of the contact solve per sub-step (at least 1).
     pub fn with_rounds(mut self, rounds: usize) -> Self {
         self.rounds = rounds.max(1);
+        self
+    }
+
+    /// The same bodies solved by projected Jacobi with mass splitting ([`jacobi`]): `params.iterations`
+    /// sweeps per sub-step, each its own round after a set-up round, each contact starting from
+    /// `warm_start` times its impulse of the previous sub-step.
+    pub fn with_jacobi(mut self, warm_start: f64) -> Self {
+        self.solver = ContactSolver::Jacobi;
+        self.warm_start = warm_start;
+        self.rounds = self.params.iterations + 1;
         self
     }
 

@@ -20,13 +20,17 @@
 //! the impulses so far: contacts beyond b's halo, which b cannot solve, then reach its solve through the
 //! velocities within the sub-step.
 //!
+//! Under `particles.solver = "jacobi"` the same two tasks run the rounds of [`super::jacobi`]: a set-up
+//! round and one round per sweep, with the same edges.
+//!
 //! Edges (symmetric neighbourhoods make these enough): `rb_sync(n, g-1) → rb(b, g)` and
 //! `rb(n, g) → rb_sync(b, g)` for every neighbour n of b (b included). Write-after-read follows by
 //! transitivity: `rb(n, g+1)` overwrites the `work` that `rb_sync(b, g)` read, and it waits for
 //! `rb_sync(b, g)`; `rb_sync(b, g+2)` overwrites the list `rb(n, g+1)` read, and it waits for
 //! `rb(b, g+2)`, which waits for `rb_sync(n, g+1)`, which waits for `rb(n, g+1)`.
 
-use super::{dist_to_box, Delta, OwnedImpulse, Particles, ShadowRef, PLANE_KEY};
+use super::{dist_to_box, BlockBodies, Delta, OwnedImpulse, Particles, ShadowRef, PLANE_KEY};
+use crate::config::ContactSolver;
 use blockflow_kernels::rigid::{
     apply_forces, detect, integrate_positions, resolve_impulses, resolve_impulses_warm, resolve_targets, Body, Contact,
     Plane, WarmStart,
@@ -41,13 +45,22 @@ impl Particles {
         let prev = ((g - 1) % 2) as usize;
         let blk = &self.blocks[b];
         let w = &mut *blk.work.get();
+        let round = ((g - 1) % self.rounds as u64) as usize;
+        let jacobi = self.solver == ContactSolver::Jacobi;
+        if jacobi && round > 0 {
+            self.jacobi_sweep(b, prev, round, w);
+            return;
+        }
         w.bodies.clear();
         w.deltas.clear();
+        w.origins.clear();
         // One pass over the neighbours' lists: a body whose home is b is a local (taken once, unshifted,
         // from its block's first entry), every copy within the halo but the unshifted one of a local is a
         // shadow; locals sorted by id, shadows by (id, neighbour), so the order does not depend on the pass.
         let mut shadows = std::mem::take(&mut w.shadow_scratch);
+        let mut locals = std::mem::take(&mut w.local_scratch);
         shadows.clear();
+        locals.clear();
         let mut scanned = 0u64;
         for (k, nb) in blk.neighbours.iter().enumerate() {
             let pb = self.blocks[nb.block].published(prev);
@@ -56,7 +69,12 @@ impl Particles {
             for (i, (body, &h)) in pb.bodies.iter().zip(&pb.homes).enumerate() {
                 let local = h as usize == b;
                 if local && nb.first {
-                    w.bodies.push(*body);
+                    locals.push(ShadowRef {
+                        id: body.id,
+                        k: k as u32,
+                        index: i as u32,
+                        position: body.position,
+                    });
                 }
                 if local && unshifted {
                     continue;
@@ -72,26 +90,52 @@ impl Particles {
                 }
             }
         }
-        w.bodies.sort_unstable_by_key(|x| x.id);
-        w.locals = w.bodies.len();
+        locals.sort_unstable_by_key(|s| s.id);
         shadows.sort_unstable_by_key(|s| (s.id, s.k));
-        w.bodies.extend(shadows.iter().map(|s| {
+        for s in locals.iter().chain(&shadows) {
             let nb = &blk.neighbours[s.k as usize];
             let mut c = self.blocks[nb.block].published(prev).bodies[s.index as usize];
             c.position = s.position;
-            c
-        }));
+            w.bodies.push(c);
+            w.origins.push((s.k, s.index));
+        }
+        w.locals = locals.len();
         shadows.clear();
+        locals.clear();
         w.shadow_scratch = shadows;
-        let dt = self.dt_sub();
-        let round = ((g - 1) % self.rounds as u64) as usize;
+        w.local_scratch = locals;
+        if jacobi {
+            self.jacobi_start(b, g, prev, scanned, w);
+            return;
+        }
         if round > 0 {
             self.rb_round(b, prev, w);
             return;
         }
+        let contacts = self.detect_substep(blk, g, scanned, w);
+        // Solve every contact the block sees (its own and, as context, those among its shadows), so the
+        // impulses of the owned ones account for the load the neighbourhood puts on them.
+        let p = &self.params;
+        let dt = self.dt_sub();
+        let mut impulses = Vec::new();
+        resolve_impulses(&w.bodies, &contacts, p, dt, &mut impulses);
+        self.record_owned(w, &blk.planes, &contacts, &impulses, None);
+        if self.rounds > 1 {
+            w.targets = resolve_targets(&w.bodies, &contacts, p, dt);
+            w.solved = impulses;
+            w.contact_list = contacts;
+        }
+    }
+
+    /// The first round of a sub-step, for either solver: forces on every gathered body (shadows too, so
+    /// every copy of a body carries the same velocity), the counters of the sub-step (`scanned` list
+    /// entries read by the gather) and the contacts among the gathered bodies, but a body's with its own
+    /// periodic image.
+    pub(super) fn detect_substep(&self, blk: &BlockBodies, g: u64, scanned: u64, w: &mut super::Work) -> Vec<Contact> {
         w.contact_list.clear();
         w.owned.clear();
-        apply_forces(&mut w.bodies, &self.params, dt);
+        let p = &self.params;
+        apply_forces(&mut w.bodies, p, self.dt_sub());
         w.contacts = 0;
         w.max_penetration = 0.0;
         if (g - 1).is_multiple_of(self.phases()) {
@@ -101,18 +145,13 @@ impl Particles {
         }
         w.scanned_step += scanned;
         if w.bodies.is_empty() {
-            return;
+            return Vec::new();
         }
-        let p = &self.params;
         let mut contacts = detect(&w.bodies, &blk.planes, p.contact_margin, p.grid_threshold);
         let bodies = &w.bodies;
         // A body never touches its own periodic image.
         contacts.retain(|c| c.b.is_none_or(|o| bodies[o].id != bodies[c.a].id));
         w.seen_step += contacts.len() as u64;
-        // Solve every contact the block sees (its own and, as context, those among its shadows), so the
-        // impulses of the owned ones account for the load the neighbourhood puts on them.
-        let mut impulses = Vec::new();
-        resolve_impulses(&w.bodies, &contacts, p, dt, &mut impulses);
         for c in contacts.iter().filter(|c| c.a < w.locals) {
             w.contacts += 1;
             w.max_penetration = w.max_penetration.max(c.depth);
@@ -120,12 +159,7 @@ impl Particles {
         w.contacts_total += w.contacts as u64;
         w.contacts_step += w.contacts as u64;
         w.max_penetration_total = w.max_penetration_total.max(w.max_penetration);
-        self.record_owned(w, &blk.planes, &contacts, &impulses, None);
-        if self.rounds > 1 {
-            w.targets = resolve_targets(&w.bodies, &contacts, p, dt);
-            w.solved = impulses;
-            w.contact_list = contacts;
-        }
+        contacts
     }
 
     /// A later round of a sub-step's contact solve in block `b` (`particles.rounds` > 1): the bodies
@@ -256,13 +290,19 @@ impl Particles {
         out.homes.clear();
         out.owned.clear();
         out.owned.extend_from_slice(&w.owned);
+        out.counts.clear();
         let dt = self.dt_sub();
         // Between the rounds of a sub-step only the velocities change.
         let last_round = g.is_multiple_of(self.rounds as u64);
         let sub = (g - 1) / self.rounds as u64 + 1;
+        // Jacobi: b's own sweep gave its locals their velocities; the first round publishes their counts.
+        let jacobi = self.solver == ContactSolver::Jacobi;
+        if jacobi && (g - 1).is_multiple_of(self.rounds as u64) {
+            out.counts.extend_from_slice(&w.jacobi.counts[..w.locals]);
+        }
         for body in &w.bodies[..w.locals] {
             let mut x = *body;
-            for &m in &blk.near {
+            for &m in blk.near.iter().filter(|_| !jacobi) {
                 let wm = &*self.blocks[m].work.get();
                 if let Ok(k) = wm.deltas.binary_search_by_key(&x.id, |d| d.id) {
                     x.velocity += wm.deltas[k].dv;
@@ -311,7 +351,7 @@ impl Particles {
 
 /// The second key of contact `c` for [`OwnedImpulse::b`]: body b's id, or the plane's id with
 /// [`PLANE_KEY`] set.
-fn contact_key_b(c: &Contact, bodies: &[Body], planes: &[Plane]) -> u64 {
+pub(super) fn contact_key_b(c: &Contact, bodies: &[Body], planes: &[Plane]) -> u64 {
     match (c.b, c.plane) {
         (Some(o), _) => bodies[o].id,
         (None, Some(k)) => planes[k].id | PLANE_KEY,
