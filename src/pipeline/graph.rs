@@ -11,7 +11,7 @@ use blockflow_scheduler::{GraphBuilder, TaskId};
 
 /// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
-/// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps. Edges as documented in
+/// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps (only `rb` under Jacobi). Edges as documented in
 /// [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
 /// active and gets `map`/`reconstruct` even without fluid.
 #[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
@@ -90,23 +90,24 @@ pub(super) fn add_particle_tasks<T: Real>(
             for &b in &active {
                 new_rb[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::Rb, kk, sub))));
             }
-            for &b in &active {
+            // Without sync tasks (Jacobi) `rb` publishes, and it is what the next phase waits for.
+            let with_sync = parts.has_sync_tasks();
+            for &b in active.iter().filter(|_| with_sync) {
                 new_sync[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::RbSync, kk, sub))));
             }
             for &b in &active {
                 let me_rb = new_rb[b].expect("active");
-                let me_sync = new_sync[b].expect("active");
                 for &n in &parts.blocks[b].near {
                     let before = if sub == 0 && coupled { forces[n] } else { sync[n] };
                     if let Some(prev) = before {
                         g.edge(prev, me_rb);
                     }
-                    if let Some(r) = new_rb[n] {
+                    if let (Some(r), Some(me_sync)) = (new_rb[n], new_sync[b]) {
                         g.edge(r, me_sync);
                     }
                 }
             }
-            sync = new_sync;
+            sync = if with_sync { new_sync } else { new_rb };
         }
     }
 }

@@ -16,6 +16,7 @@
 //! | `rb_sync(n, g)` → `rb(b, g + 1)`, `map(b, t)` | n's published list of parity g | the copy of n's list |
 //! | `forces(n, t)` → `rb(b, first phase)` | n's published list, forces set | the copy of n's list |
 //! | `rb(n, g)` → `rb_sync(b, g)` | n's velocity changes | the copy of n's `work` |
+//! | `rb(n, g)` → `rb(b, g + 1)`, `map(b, t)` (Jacobi: no `rb_sync`) | n's published list of parity g | the copy of n's list |
 //! | `boundary(n, t)` or `map(n, t)` → `forces(b, t)` | n's body forces | [`crate::physics::block::Block::set_remote_forces`] |
 //!
 //! The slot-reuse edges `comm(b, s) → send(n, s + 1)` carry nothing between ranks: a received region has
@@ -283,6 +284,10 @@ pub(super) unsafe fn post<T: Real>(
                 encode_published(parts().blocks[b].published((g % 2) as usize), &mut bytes)
             }
             TaskKind::Forces => encode_published(parts().blocks[b].published(parts().parity(step)), &mut bytes),
+            TaskKind::Rb if !parts().has_sync_tasks() => {
+                let g = step * parts().phases() + producer.sub as u64 + 1;
+                encode_published(parts().blocks[b].published((g % 2) as usize), &mut bytes)
+            }
             TaskKind::Rb => encode_deltas(&parts().blocks[b].work().deltas, &mut bytes),
             TaskKind::Boundary | TaskKind::Map => encode_forces(sim.blocks[b].body_forces(), &mut bytes),
             k => unreachable!("a {} task has no message between ranks", k.name()),
@@ -399,7 +404,7 @@ impl<T: Real> Driver<'_, T> {
             // the new contents wait for the release below (module docs).
             unsafe {
                 match p.kind {
-                    TaskKind::RbSync => {
+                    TaskKind::RbSync | TaskKind::Rb if p.kind == TaskKind::RbSync || !parts.has_sync_tasks() => {
                         let g = step * parts.phases() + p.sub as u64 + 1;
                         let list = decode_published(&mut r, parts.blocks.len()).map_err(fail)?;
                         parts.blocks[b].replace_published((g % 2) as usize, list);

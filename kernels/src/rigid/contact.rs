@@ -87,9 +87,10 @@ fn plane_contacts(bodies: &[Body], planes: &[Plane], margin: f64, out: &mut Vec<
     }
 }
 
-/// Sort key: (id of a, 0 for sphere / 1 for plane, id of the partner, partner index).
+/// Sort key: (id of a, 0 for sphere / 1 for plane, id of the partner, partner index). The key of each
+/// contact is computed once (it reads two bodies); keys are distinct, so the order is the only one.
 fn sort_contacts(bodies: &[Body], planes: &[Plane], c: &mut [Contact]) {
-    c.sort_by_key(|c| match (c.b, c.plane) {
+    c.sort_by_cached_key(|c| match (c.b, c.plane) {
         (Some(b), _) => (bodies[c.a].id, 0u8, bodies[b].id, b, c.a),
         (None, Some(k)) => (bodies[c.a].id, 1u8, planes[k].id, k, c.a),
         _ => unreachable!(),

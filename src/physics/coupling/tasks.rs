@@ -47,7 +47,8 @@ pub fn bodies_near<T: Real>(parts: &Particles, blk: &Block<T>, steps: u64) -> Ve
     let par = parts.parity(steps);
     let mut out = Vec::new();
     for &n in &pb.near {
-        // SAFETY: the graph orders the publishing rb_sync before and the next forces task after.
+        // SAFETY: the graph orders the publishing rb_sync (rb under Jacobi) before and the next forces
+        // task after.
         let list = unsafe { parts.blocks[n].published(par) };
         for body in &list.bodies {
             if image_distance(d, body.position, lo, hi) <= body.radius {

@@ -178,14 +178,15 @@ pub struct BlockBodies {
     pub near: Vec<usize>,
     /// Planes a local body of this block can touch.
     pub planes: Vec<Plane>,
-    /// Local bodies after sub-step s, by parity of s (sorted by id). Written by `rb_sync(b, s)`.
+    /// Local bodies after phase s, by parity of s (sorted by id). Written by `rb_sync(b, s)` (under
+    /// Jacobi by `rb(b, s)`).
     published: [UnsafeCell<Published>; 2],
     /// Written by `rb(b, s)`.
     work: UnsafeCell<Work>,
 }
 
 // SAFETY: the cells are written only by the tasks of this block (`rb` writes `work`, `rb_sync` writes
-// `published[s % 2]`), and the task graph orders every write after the last read of the same data by a
+// `published[s % 2]`, or `rb` under Jacobi), and the task graph orders every write after the last read of the same data by a
 // neighbour's task and before the next one (see `tasks`).
 unsafe impl Sync for BlockBodies {}
 
@@ -396,7 +397,8 @@ impl Particles {
         self
     }
 
-    /// Rigid-body phases per step: sub-steps times rounds (each phase is one `rb`/`rb_sync` pair).
+    /// Rigid-body phases per step: sub-steps times rounds (each phase is one `rb`/`rb_sync` pair, or one
+    /// `rb` under Jacobi).
     pub fn phases(&self) -> u64 {
         (self.subcycles * self.rounds) as u64
     }
@@ -659,8 +661,8 @@ impl Particles {
         self.max_radius
     }
 
-    /// Advances `steps` steps without the scheduler: every sub-step runs `rb` on all active blocks, then
-    /// `rb_sync` on all of them, in block order. The reference the task graph must reproduce bitwise.
+    /// Advances `steps` steps without the scheduler: every phase runs `rb` on all active blocks, then
+    /// `rb_sync` on all of them (where the solver has it), in block order. The reference the task graph must reproduce bitwise.
     pub fn advance_serial(&mut self, start_step: u64, steps: u64) -> std::result::Result<(), String> {
         let bodies = self.bodies(start_step);
         self.update_active(steps, &bodies);
@@ -673,7 +675,7 @@ impl Particles {
                     unsafe { self.rb(b, g) };
                 }
             }
-            for b in 0..self.blocks.len() {
+            for b in (0..self.blocks.len()).filter(|_| self.has_sync_tasks()) {
                 if self.active[b] {
                     // SAFETY: as above.
                     unsafe { self.rb_sync(b, g) };

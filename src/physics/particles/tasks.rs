@@ -20,8 +20,9 @@
 //! the impulses so far: contacts beyond b's halo, which b cannot solve, then reach its solve through the
 //! velocities within the sub-step.
 //!
-//! Under `particles.solver = "jacobi"` the same two tasks run the rounds of [`super::jacobi`]: a set-up
-//! round and one round per sweep, with the same edges.
+//! Under `particles.solver = "jacobi"` the phases are the rounds of [`super::jacobi`]: a set-up round
+//! and one round per sweep. Each is one task per block: `rb(b, g)` publishes at its end, since b's
+//! locals take no velocity change from a neighbour ([`Particles::has_sync_tasks`] gives its edges).
 //!
 //! Edges (symmetric neighbourhoods make these enough): `rb_sync(n, g-1) → rb(b, g)` and
 //! `rb(n, g) → rb_sync(b, g)` for every neighbour n of b (b included). Write-after-read follows by
@@ -37,11 +38,34 @@ use blockflow_kernels::rigid::{
 };
 
 impl Particles {
-    /// Task `rb(b, g)`; see the module docs.
+    /// Task `rb(b, g)`; see the module docs. Under the Jacobi solver it also publishes (the work of
+    /// `rb_sync(b, g)`, which that solver's graph does not have).
     ///
     /// # Safety
     /// Must run ordered by the edges of the module docs against the other rigid-body tasks.
     pub unsafe fn rb(&self, b: usize, g: u64) {
+        self.solve_phase(b, g);
+        if !self.has_sync_tasks() {
+            self.publish(b, g);
+        }
+    }
+
+    /// Whether a phase has the second task `rb_sync`: under block Gauss–Seidel a block's locals take
+    /// velocity changes from its neighbours' solves, which must all have finished. Under Jacobi each
+    /// block computes its locals' velocities itself (it holds all their contacts), so `rb(b, g)`
+    /// publishes them at its end and a phase is one task per block, with the edges
+    /// `rb(n, g-1) → rb(b, g)` for every neighbour n of b (b included). They order every access:
+    /// `rb(b, g)` reads the lists of parity (g-1) % 2 that `rb(n, g-1)` wrote, and overwrites b's list of
+    /// parity g % 2 only after every `rb(n, g-1)` that read it has finished.
+    pub fn has_sync_tasks(&self) -> bool {
+        self.solver != ContactSolver::Jacobi
+    }
+
+    /// The computing part of `rb(b, g)` (module docs).
+    ///
+    /// # Safety
+    /// As for [`Particles::rb`].
+    unsafe fn solve_phase(&self, b: usize, g: u64) {
         let prev = ((g - 1) % 2) as usize;
         let blk = &self.blocks[b];
         let w = &mut *blk.work.get();
@@ -283,25 +307,46 @@ impl Particles {
     /// # Safety
     /// Must run ordered by the edges of the module docs against the other rigid-body tasks.
     pub unsafe fn rb_sync(&self, b: usize, g: u64) {
+        self.publish(b, g)
+    }
+
+    /// What `rb_sync(b, g)` does (module docs); under Jacobi the end of `rb(b, g)`.
+    ///
+    /// # Safety
+    /// As for [`Particles::rb_sync`].
+    unsafe fn publish(&self, b: usize, g: u64) {
         let blk = &self.blocks[b];
         let w = &*blk.work.get();
         let out = &mut *blk.published[(g % 2) as usize].get();
-        out.bodies.clear();
-        out.homes.clear();
+        let dt = self.dt_sub();
+        // Between the rounds of a sub-step only the velocities change.
+        let round = (g - 1) % self.rounds as u64;
+        let last_round = round + 1 == self.rounds as u64;
+        let sub = (g - 1) / self.rounds as u64 + 1;
+        let jacobi = self.solver == ContactSolver::Jacobi;
+        let locals = &w.bodies[..w.locals];
+        // Jacobi from the second sweep on: this parity's list was published two rounds back in the same
+        // sub-step, with the same bodies in the same order and the same values but the velocities.
+        let same_bodies = jacobi && round >= 2 && out.bodies.len() == locals.len();
+        if same_bodies {
+            debug_assert!(out.bodies.iter().map(|x| x.id).eq(locals.iter().map(|x| x.id)));
+            for (o, x) in out.bodies.iter_mut().zip(locals) {
+                o.velocity = x.velocity;
+                o.angular_velocity = x.angular_velocity;
+            }
+        } else {
+            out.bodies.clear();
+            out.bodies.extend_from_slice(locals);
+            out.homes.clear();
+        }
         out.owned.clear();
         out.owned.extend_from_slice(&w.owned);
         out.counts.clear();
-        let dt = self.dt_sub();
-        // Between the rounds of a sub-step only the velocities change.
-        let last_round = g.is_multiple_of(self.rounds as u64);
-        let sub = (g - 1) / self.rounds as u64 + 1;
         // Jacobi: b's own sweep gave its locals their velocities; the first round publishes their counts.
-        let jacobi = self.solver == ContactSolver::Jacobi;
-        if jacobi && (g - 1).is_multiple_of(self.rounds as u64) {
+        if jacobi && round == 0 {
             out.counts.extend_from_slice(&w.jacobi.counts[..w.locals]);
         }
-        for body in &w.bodies[..w.locals] {
-            let mut x = *body;
+        for (i, x) in out.bodies.iter_mut().enumerate() {
             for &m in blk.near.iter().filter(|_| !jacobi) {
                 let wm = &*self.blocks[m].work.get();
                 if let Ok(k) = wm.deltas.binary_search_by_key(&x.id, |d| d.id) {
@@ -310,12 +355,13 @@ impl Particles {
                 }
             }
             if !last_round {
-                out.bodies.push(x);
-                out.homes.push(self.home(x.position) as u32);
+                if !same_bodies {
+                    out.homes.push(self.home(x.position) as u32);
+                }
                 continue;
             }
             let old = x.position;
-            integrate_positions(std::slice::from_mut(&mut x), dt);
+            integrate_positions(std::slice::from_mut(x), dt);
             let moved = (x.position - old).length();
             x.position = self.wrap(x.position);
             let home = self.home(x.position);
@@ -343,8 +389,11 @@ impl Particles {
                     ),
                 );
             }
-            out.bodies.push(x);
-            out.homes.push(home as u32);
+            if same_bodies {
+                out.homes[i] = home as u32;
+            } else {
+                out.homes.push(home as u32);
+            }
         }
     }
 }
