@@ -11,8 +11,8 @@ use blockflow_scheduler::{GraphBuilder, TaskId};
 
 /// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
-/// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps (only `rb` under Jacobi). Edges as documented in
-/// [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
+/// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps (only `rb` under Jacobi). Edges as
+/// documented in [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
 /// active and gets `map`/`reconstruct` even without fluid.
 #[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
 pub(super) fn add_particle_tasks<T: Real>(
@@ -92,8 +92,10 @@ pub(super) fn add_particle_tasks<T: Real>(
             }
             // Without sync tasks (Jacobi) `rb` publishes, and it is what the next phase waits for.
             let with_sync = parts.has_sync_tasks();
-            for &b in active.iter().filter(|_| with_sync) {
-                new_sync[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::RbSync, kk, sub))));
+            if with_sync {
+                for &b in &active {
+                    new_sync[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::RbSync, kk, sub))));
+                }
             }
             for &b in &active {
                 let me_rb = new_rb[b].expect("active");

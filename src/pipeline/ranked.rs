@@ -241,6 +241,12 @@ impl RankGhosts {
 /// What a rank's tasks queue for the driver to send: (destination rank, bytes).
 pub(super) type Outbox = Mutex<Vec<(u32, Vec<u8>)>>;
 
+/// Whether a task of kind `kind` ends a rigid-body phase by publishing its block's list: `rb_sync`, or
+/// `rb` under a solver without sync tasks (Jacobi). Its message is that list.
+fn publishes(kind: TaskKind, parts: &Particles) -> bool {
+    kind == TaskKind::RbSync || (kind == TaskKind::Rb && !parts.has_sync_tasks())
+}
+
 /// The messages of one finished local task (see the module table): sent at once when the transport lets
 /// any thread send, else (or when the send fails) queued in `outbox` for the driver; each sent one is
 /// logged in `log`. Returns whether the outbox was empty before something was queued (then the driver
@@ -279,15 +285,11 @@ pub(super) unsafe fn post<T: Real>(
         let mut bytes = header(producer, base);
         let parts = || sim.particles.as_ref().expect("particle tasks only with particles");
         match producer.kind {
-            TaskKind::RbSync => {
+            k if publishes(k, parts()) => {
                 let g = step * parts().phases() + producer.sub as u64 + 1;
                 encode_published(parts().blocks[b].published((g % 2) as usize), &mut bytes)
             }
             TaskKind::Forces => encode_published(parts().blocks[b].published(parts().parity(step)), &mut bytes),
-            TaskKind::Rb if !parts().has_sync_tasks() => {
-                let g = step * parts().phases() + producer.sub as u64 + 1;
-                encode_published(parts().blocks[b].published((g % 2) as usize), &mut bytes)
-            }
             TaskKind::Rb => encode_deltas(&parts().blocks[b].work().deltas, &mut bytes),
             TaskKind::Boundary | TaskKind::Map => encode_forces(sim.blocks[b].body_forces(), &mut bytes),
             k => unreachable!("a {} task has no message between ranks", k.name()),
@@ -404,7 +406,7 @@ impl<T: Real> Driver<'_, T> {
             // the new contents wait for the release below (module docs).
             unsafe {
                 match p.kind {
-                    TaskKind::RbSync | TaskKind::Rb if p.kind == TaskKind::RbSync || !parts.has_sync_tasks() => {
+                    _ if publishes(p.kind, parts) => {
                         let g = step * parts.phases() + p.sub as u64 + 1;
                         let list = decode_published(&mut r, parts.blocks.len()).map_err(fail)?;
                         parts.blocks[b].replace_published((g % 2) as usize, list);

@@ -186,8 +186,8 @@ pub struct BlockBodies {
 }
 
 // SAFETY: the cells are written only by the tasks of this block (`rb` writes `work`, `rb_sync` writes
-// `published[s % 2]`, or `rb` under Jacobi), and the task graph orders every write after the last read of the same data by a
-// neighbour's task and before the next one (see `tasks`).
+// `published[s % 2]`, or `rb` under Jacobi), and the task graph orders every write after the last read
+// of the same data by a neighbour's task and before the next one (see `tasks`).
 unsafe impl Sync for BlockBodies {}
 
 impl BlockBodies {
@@ -662,7 +662,8 @@ impl Particles {
     }
 
     /// Advances `steps` steps without the scheduler: every phase runs `rb` on all active blocks, then
-    /// `rb_sync` on all of them (where the solver has it), in block order. The reference the task graph must reproduce bitwise.
+    /// `rb_sync` on all of them (where the solver has it), in block order. The reference the task graph
+    /// must reproduce bitwise.
     pub fn advance_serial(&mut self, start_step: u64, steps: u64) -> std::result::Result<(), String> {
         let bodies = self.bodies(start_step);
         self.update_active(steps, &bodies);
@@ -675,10 +676,12 @@ impl Particles {
                     unsafe { self.rb(b, g) };
                 }
             }
-            for b in (0..self.blocks.len()).filter(|_| self.has_sync_tasks()) {
-                if self.active[b] {
-                    // SAFETY: as above.
-                    unsafe { self.rb_sync(b, g) };
+            if self.has_sync_tasks() {
+                for b in 0..self.blocks.len() {
+                    if self.active[b] {
+                        // SAFETY: as above.
+                        unsafe { self.rb_sync(b, g) };
+                    }
                 }
             }
             if g.is_multiple_of(self.rounds as u64) {
