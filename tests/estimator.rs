@@ -109,6 +109,7 @@ fn block_quantities_match_a_brute_force_recount() {
             "wall links of block {}",
             blk.id
         );
+        assert_eq!(q.wall_lines, blk.links.lines() as f64, "wall lines of block {}", blk.id);
         if !parts.active[blk.id] {
             assert_eq!((q.pl, q.ps, q.k, q.s), (0.0, 0.0, 0.0, 0.0));
             continue;

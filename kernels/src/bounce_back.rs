@@ -54,6 +54,21 @@ impl<T: Real> Links<T> {
         self.noslip.len() + self.moving.len()
     }
 
+    /// Distinct 64-byte cache lines the boundary pass reads or writes (both elements of every link): what
+    /// the pass costs in memory traffic. Links along a wall that crosses the rows (normal along x) each
+    /// touch lines of their own; links along a wall parallel to the rows share them.
+    pub fn lines(&self) -> usize {
+        let per_line = (64 / T::BYTES).max(1);
+        let mut ids: Vec<usize> = (self.noslip.iter().copied())
+            .chain(self.moving.iter().map(|(pair, _)| *pair))
+            .flatten()
+            .map(|e| e / per_line)
+            .collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids.len()
+    }
+
     /// Whether the block has no links (then it needs no boundary pass).
     pub fn is_empty(&self) -> bool {
         self.len() == 0
@@ -88,5 +103,39 @@ impl<T: Real> Links<T> {
             debug_assert!(pair[0] < len && pair[1] < len);
             *data.add(pair[d]) = *data.add(pair[s]) + *t;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::d3q19::Q;
+
+    /// Links of a 16³ block's face cells towards a resting wall: across the rows (normal x), every element
+    /// lies in a row of its own, so each link touches two lines; along the rows (normal z), the 16 cells of
+    /// a row lie within 3 lines of 8 elements, in 5 source and 5 destination arrays: 16 rows × 3 × 10.
+    #[test]
+    fn wall_links_across_the_rows_touch_a_line_per_element_along_them_share_lines() {
+        let layout = Layout::new::<f64>([16, 16, 16]);
+        let mut across = Links::<f64>::new(Pattern::Aa);
+        for a in 1..=16 {
+            for b in 1..=16 {
+                for q in (1..Q).filter(|&q| C[q][0] == 1) {
+                    across.push(&layout, layout.idx(1, a, b), q, [0.0; 3]);
+                }
+            }
+        }
+        assert_eq!(across.len(), 16 * 16 * 5);
+        assert_eq!(across.lines(), 2 * across.len());
+        let mut along = Links::<f64>::new(Pattern::Aa);
+        for y in 1..=16 {
+            for x in 1..=16 {
+                for q in (1..Q).filter(|&q| C[q][2] == 1) {
+                    along.push(&layout, layout.idx(x, y, 1), q, [0.0; 3]);
+                }
+            }
+        }
+        assert_eq!(along.len(), 16 * 16 * 5);
+        assert_eq!(along.lines(), 16 * 3 * 10);
     }
 }

@@ -154,8 +154,9 @@ impl Slots {
     }
 }
 
-/// A page-aligned, zero-initialised buffer. Memory is obtained with `alloc_zeroed`, so large buffers are
-/// mapped lazily and first-touched by whichever thread writes them first (NUMA placement).
+/// A page-aligned, zero-initialised buffer, obtained with `alloc_zeroed`. The standard allocator zeroes
+/// an allocation aligned past its minimum with a memset, so every page is first touched (and placed on a
+/// NUMA node) by the thread that creates the buffer.
 pub struct AlignedBuf<T: Real> {
     ptr: *mut T,
     len: usize,

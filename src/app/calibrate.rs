@@ -208,6 +208,7 @@ impl Observer<f64> for Sampler {
                 q.rb_active,
                 q.contacts_seen,
                 q.scanned,
+                q.wall_lines,
             ];
             let counts: Vec<String> = counts.iter().map(|x| x.to_string()).collect();
             self.csv += &format!(
@@ -339,6 +340,8 @@ fn run_config(o: &CalibrateOptions, bs: usize, d: f64, duration: f64) -> Result<
         "processes.steps_per_graph=1".to_string(),
         // One worker on one core for the whole run (the paper pinned every process with LIKWID).
         "processes.pin=\"compact\"".to_string(),
+        // The campaign does not read the coefficients it is about to replace.
+        "balance.weights=\"cells\"".to_string(),
     ];
     config::load(&o.scene, &sets)
 }
@@ -443,6 +446,8 @@ fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
             "processes.steps_per_graph=1",
             "processes.pin=\"compact\"",
             "balance.strategy=\"none\"",
+            // The campaign does not read the coefficients it is about to replace.
+            "balance.weights=\"cells\"",
         ]
         .map(String::from);
         let cfg = config::load(path, &sets)?;
@@ -695,7 +700,7 @@ fn record(plans: &[Plan]) -> Result<Campaign> {
         csv: String::from(
             "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,particle_links,\
              link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,contacts_seen,\
-             scanned,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
+             scanned,wall_lines,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
         ),
     };
     for (r, p) in plans.iter().enumerate() {
@@ -934,6 +939,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
         "m_coup2",
         "m_rb",
         "breaks",
+        "wall_lines",
     ];
     let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
     let mut c = Campaign {
@@ -969,6 +975,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
             runs: v[14],
             breaks: v[32],
             wall_links: v[15],
+            wall_lines: v[33],
             particle_links: v[16],
             link_cells: v[17],
             map_active: v[18],

@@ -11,7 +11,7 @@
 //! | part | paper | `blockflow` |
 //! |---|---|---|
 //! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), [F > 0] |
-//! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, particle links, link cells, [F > 0] |
+//! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [F > 0] |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |
 //! | RB | eq. (14): S·(a1·(P_L+P_S)² + a2·P_L + a3·P_S + a4·K + a5) | S·[active], S·(P_L+P_S)², S·(P_L+P_S), S·K_seen, S·(list entries scanned), P_L (the force sum, once per step) |
@@ -83,6 +83,7 @@ const BLOCKFLOW: [Terms; 5] = [
     ],
     &[
         ("wall_links", "bounce-back links at walls"),
+        ("wall_lines", "cache lines the wall links touch"),
         ("particle_links", "links into particle cells"),
         ("link_cells", "fluid cells with a particle link"),
         ("active", "1 if F > 0"),
@@ -169,7 +170,7 @@ fn blockflow_row(part: usize, q: &Quantities) -> Row {
     let fluid = f64::from(u8::from(q.f > 0.0));
     match part {
         0 => Row::of(&[q.f, q.runs, q.breaks, fluid]),
-        1 => Row::of(&[q.wall_links, q.particle_links, q.link_cells, 1.0].map(|x| x * fluid)),
+        1 => Row::of(&[q.wall_links, q.wall_lines, q.particle_links, q.link_cells, 1.0].map(|x| x * fluid)),
         2 => Row::of(
             &[
                 q.map_active,

@@ -51,6 +51,10 @@ pub struct Quantities {
     /// Bounce-back links at walls (resting and moving).
     #[serde(default)]
     pub wall_links: f64,
+    /// Cache lines the wall links touch: a wall across the rows (normal along x) costs a line per link,
+    /// one along the rows shares lines between links.
+    #[serde(default)]
+    pub wall_lines: f64,
     /// Links from fluid cells into particle cells (each gets δ_q and the momentum exchange).
     #[serde(default)]
     pub particle_links: f64,
@@ -99,6 +103,7 @@ impl Quantities {
         let mut q = Quantities {
             c: blk.layout.interior_cells() as f64,
             wall_links: (blk.links.noslip.len() + blk.links.moving.len()) as f64,
+            wall_lines: blk.wall_lines as f64,
             ..Default::default()
         };
         match blk.particle_cells() {

@@ -83,6 +83,8 @@ pub struct Block<T: Real> {
     pub fluid_cells: usize,
     /// Number of interior fluid cells with a wall neighbour.
     pub near_boundary_cells: usize,
+    /// Cache lines the wall links touch ([`Links::lines`]), counted once at set-up.
+    pub wall_lines: usize,
     /// Whether every interior cell is fluid (then segments are whole rows).
     pub obstacle_free: bool,
     /// Cells covered by particles, their links and forces (absent without particles in the fluid).
@@ -254,6 +256,7 @@ impl<T: Real> Block<T> {
             }
         }
         let obstacle_free = fluid_cells == layout.interior_cells();
+        let wall_lines = links.lines();
         Block {
             id,
             coords: d.coords(id),
@@ -270,6 +273,7 @@ impl<T: Real> Block<T> {
             recv,
             fluid_cells,
             near_boundary_cells: near,
+            wall_lines,
             obstacle_free,
             particles: UnsafeCell::new(None),
             remote_forces: UnsafeCell::new(Vec::new()),
