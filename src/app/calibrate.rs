@@ -330,19 +330,26 @@ fn preset(o: &CalibrateOptions) -> Vec<(usize, f64, f64)> {
         .collect()
 }
 
+/// Keys every run of a campaign is recorded with.
+const RECORDING: [&str; 5] = [
+    // One worker on one core for the whole run (the paper pinned every process with LIKWID).
+    "processes.count=1",
+    "processes.threads_per_process=1",
+    "processes.steps_per_graph=1",
+    "processes.pin=\"compact\"",
+    // The campaign does not read the coefficients it is about to replace.
+    "balance.weights=\"cells\"",
+];
+
 fn run_config(o: &CalibrateOptions, bs: usize, d: f64, duration: f64) -> Result<Config> {
-    let sets = vec![
+    let sets: Vec<String> = [
         format!("domain.block_size=[{bs},{bs},{bs}]"),
         format!("scene.diameter={d}"),
         format!("scene.duration={duration}"),
-        "processes.count=1".to_string(),
-        "processes.threads_per_process=1".to_string(),
-        "processes.steps_per_graph=1".to_string(),
-        // One worker on one core for the whole run (the paper pinned every process with LIKWID).
-        "processes.pin=\"compact\"".to_string(),
-        // The campaign does not read the coefficients it is about to replace.
-        "balance.weights=\"cells\"".to_string(),
-    ];
+    ]
+    .into_iter()
+    .chain(RECORDING.map(String::from))
+    .collect();
     config::load(&o.scene, &sets)
 }
 
@@ -440,16 +447,11 @@ fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
         .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.block_size, p.diameter))
         .collect();
     for path in &o.with {
-        let sets = [
-            "processes.count=1",
-            "processes.threads_per_process=1",
-            "processes.steps_per_graph=1",
-            "processes.pin=\"compact\"",
-            "balance.strategy=\"none\"",
-            // The campaign does not read the coefficients it is about to replace.
-            "balance.weights=\"cells\"",
-        ]
-        .map(String::from);
+        let sets: Vec<String> = RECORDING
+            .iter()
+            .chain(&["balance.strategy=\"none\""])
+            .map(|s| s.to_string())
+            .collect();
         let cfg = config::load(path, &sets)?;
         let scene = scenes::build(&cfg)?;
         let diameter = scene
