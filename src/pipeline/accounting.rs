@@ -2,10 +2,10 @@
 //! skip rule) and the record of the last graph run ([`RunRecord`]) that the time loop and its observers
 //! read.
 
-use super::kinds::{ByKind, Payload};
+use super::kinds::{ByKind, Payload, TaskKind};
 use super::messages::MessageSizes;
 use super::skip::ByRule;
-use super::{BlockPartNs, Pipeline};
+use super::{BlockPartNs, Compiled, Pipeline};
 use crate::metrics::cost_model::{OwnedRun, RecordedRun};
 use crate::physics::parts::{ByPart, Part};
 use crate::physics::simulation::Simulation;
@@ -178,12 +178,14 @@ impl<T: Real> Pipeline<T> {
     /// Adds one graph run's task times to the totals and keeps them as the last run.
     pub(super) fn account(
         &mut self,
-        graph: &TaskGraph,
+        compiled: &Compiled,
         records: &[TaskRecord],
         wall: f64,
         sim: &Simulation<T>,
         k: usize,
     ) {
+        let graph = &*compiled.graph;
+        let rounds = sim.particles.as_ref().map_or(1, |p| p.rounds);
         let nb = sim.blocks.len();
         let held: Vec<bool> = (0..nb).map(|b| self.local_process(b).is_some()).collect();
         let last = &mut self.last;
@@ -208,11 +210,19 @@ impl<T: Real> Pipeline<T> {
             if let Some(Some(rule)) = rule_of.get(i) {
                 t.unskipped_cpu[*rule as usize] += cpu;
             }
-            if record_parts {
-                last.block_part_ns[payload.step * nb + spec.block as usize][part] += r.cpu_ns;
-            }
-            if part.is_workload() {
-                last.block_load[spec.block as usize] += cpu;
+            // A group's task time is shared equally among its members.
+            let one = [spec.block as usize];
+            let blocks = match payload.kind {
+                TaskKind::Rb => compiled.groups.members(one[0], payload.sub % rounds).unwrap_or(&one),
+                _ => &one,
+            };
+            for &b in blocks {
+                if record_parts {
+                    last.block_part_ns[payload.step * nb + b][part] += r.cpu_ns / blocks.len() as u64;
+                }
+                if part.is_workload() {
+                    last.block_load[b] += cpu / blocks.len() as f64;
+                }
             }
             last.durations_ns.push(r.cpu_ns);
         }

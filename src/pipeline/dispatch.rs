@@ -1,6 +1,7 @@
 //! What each task of the step graph does: the per-block stage of [`crate::physics`] its kind names, on
 //! the field of its step's parity.
 
+use super::graph::SweepGroups;
 use super::kinds::{Payload, TaskKind};
 use super::messages::MessagePlan;
 use super::ranked::RankGhosts;
@@ -24,6 +25,8 @@ pub(super) struct Dispatch<'a, T: Real> {
     /// Under ranks: the ghost regions between ranks (packed into messages by `ranked::post`, unpacked
     /// from their buffers by `comm`).
     pub(super) ghosts: Option<&'a RankGhosts>,
+    /// The blocks each `rb` task of a Jacobi sweep round runs.
+    pub(super) groups: &'a SweepGroups,
 }
 
 impl<T: Real> Dispatch<'_, T> {
@@ -49,7 +52,11 @@ impl<T: Real> Dispatch<'_, T> {
                     .expect("rigid-body tasks only exist with particles");
                 let g = step * parts.phases() + payload.sub as u64 + 1;
                 if payload.kind == TaskKind::Rb {
-                    parts.rb(b.id, g)
+                    match self.groups.members(b.id, payload.sub % parts.rounds) {
+                        // A group's members in id order; each reads only the round before.
+                        Some(members) => members.iter().for_each(|&m| parts.rb(m, g)),
+                        None => parts.rb(b.id, g),
+                    }
                 } else {
                     parts.rb_sync(b.id, g)
                 }

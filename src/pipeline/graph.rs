@@ -13,7 +13,9 @@ use blockflow_scheduler::{GraphBuilder, TaskId};
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
 /// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps (only `rb` under Jacobi). Edges as
 /// documented in [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
-/// active and gets `map`/`reconstruct` even without fluid.
+/// active and gets `map`/`reconstruct` even without fluid. With `grouped` under Jacobi, the sweep rounds
+/// run one task per [`SweepGroups`] group (returned; empty otherwise), after every task of the round
+/// before that covers a neighbour of a member.
 #[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
 pub(super) fn add_particle_tasks<T: Real>(
     g: &mut GraphBuilder,
@@ -24,10 +26,19 @@ pub(super) fn add_particle_tasks<T: Real>(
     fluid: &[Ids],
     coupled: bool,
     no_skip: bool,
-) {
+    grouped: bool,
+) -> SweepGroups {
     let nb = parts.blocks.len();
     let s = parts.phases() as usize;
     let active: Vec<usize> = (0..nb).filter(|&b| no_skip || parts.active[b]).collect();
+    let groups = if grouped && !parts.has_sync_tasks() {
+        // SAFETY: the graph is built between runs; no `rb` task runs.
+        SweepGroups::new(nb, owners, &active, |b| unsafe {
+            parts.blocks[b].work().contact_list.len()
+        })
+    } else {
+        SweepGroups::default()
+    };
     let task = |b: usize, payload: Payload| spec(owners[b], b, payload);
     // Receivers of each block's interior layers inside the same process (their comm reads it directly).
     let mut local_receivers: Vec<Vec<usize>> = vec![Vec::new(); nb];
@@ -87,6 +98,23 @@ pub(super) fn add_particle_tasks<T: Real>(
         for sub in 0..s {
             let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
             let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
+            if groups.runs_round(sub % parts.rounds) {
+                // A sweep round: one task per group, after every task of the round before that covers a
+                // neighbour of a member (the graph's build drops the repeated edges).
+                for (first, members) in groups.iter() {
+                    let t = g.add(task(first, Payload::sub_step(TaskKind::Rb, kk, sub)));
+                    for &m in members {
+                        new_rb[m] = Some(t);
+                        for &n in &parts.blocks[m].near {
+                            if let Some(prev) = sync[n] {
+                                g.edge(prev, t);
+                            }
+                        }
+                    }
+                }
+                sync = new_rb;
+                continue;
+            }
             for &b in &active {
                 new_rb[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::Rb, kk, sub))));
             }
@@ -111,6 +139,85 @@ pub(super) fn add_particle_tasks<T: Real>(
             }
             sync = if with_sync { new_sync } else { new_rb };
         }
+    }
+    groups
+}
+
+/// Contacts per `rb` task of a Jacobi sweep round at most, unless one block has more: a sweep costs
+/// tens of nanoseconds per contact and a task about half a microsecond to schedule and release.
+const GROUP_CONTACTS: usize = 32;
+
+/// Under the Jacobi solver, the blocks whose sweep rounds (rounds 1 … I of a sub-step) one `rb` task
+/// runs: every process's active blocks in id order, cut into runs whose blocks solved at most
+/// [`GROUP_CONTACTS`] contacts in their last sub-step together (a block with more is a run of its own).
+/// Most blocks have few contacts or none and a sweep round only publishes their velocities, so one task
+/// per block and round (S × I per block and step, each with an edge from every neighbour) costs more in
+/// scheduling than in work; blocks with many contacts keep a task each, so their sweeps run in
+/// parallel. A block's round reads only the lists of the round before and writes only its own, so it
+/// computes the same bits in any task; the set-up round (gather, detection) stays one task per block.
+#[derive(Clone, Debug, Default)]
+pub(super) struct SweepGroups {
+    /// (first block, members in id order) of every group.
+    groups: Vec<(usize, Vec<usize>)>,
+    /// Index into `groups` of the group a block starts (`u32::MAX`: none).
+    starts: Vec<u32>,
+}
+
+impl SweepGroups {
+    /// The groups of `active` (ascending block ids) under `owners`, for `nb` blocks, from each block's
+    /// contacts in its last sub-step (`contacts`).
+    fn new(nb: usize, owners: &[u32], active: &[usize], contacts: impl Fn(usize) -> usize) -> Self {
+        let mut by_owner: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
+        for &b in active {
+            by_owner.entry(owners[b]).or_default().push(b);
+        }
+        let mut out = SweepGroups {
+            groups: Vec::new(),
+            starts: vec![u32::MAX; nb],
+        };
+        for blocks in by_owner.values() {
+            let mut run: Vec<usize> = Vec::new();
+            let mut load = 0;
+            for &b in blocks {
+                let c = contacts(b);
+                if !run.is_empty() && load + c > GROUP_CONTACTS {
+                    out.push(std::mem::take(&mut run));
+                    load = 0;
+                }
+                run.push(b);
+                load += c;
+            }
+            if !run.is_empty() {
+                out.push(run);
+            }
+        }
+        out
+    }
+
+    /// Adds the group `members` (ascending ids).
+    fn push(&mut self, members: Vec<usize>) {
+        self.starts[members[0]] = self.groups.len() as u32;
+        self.groups.push((members[0], members));
+    }
+
+    /// Whether round `round` of a sub-step runs as one task per group (a sweep round of a grouped graph).
+    pub(super) fn runs_round(&self, round: usize) -> bool {
+        round > 0 && !self.groups.is_empty()
+    }
+
+    /// The groups as (first block, members).
+    fn iter(&self) -> impl Iterator<Item = (usize, &[usize])> {
+        self.groups.iter().map(|(f, m)| (*f, m.as_slice()))
+    }
+
+    /// The blocks the `rb` task of block `b` in round `round` runs: the group b starts in a grouped sweep
+    /// round, else `None` (b alone).
+    pub(super) fn members(&self, b: usize, round: usize) -> Option<&[usize]> {
+        if !self.runs_round(round) {
+            return None;
+        }
+        let i = *self.starts.get(b)?;
+        (i != u32::MAX).then(|| self.groups[i as usize].1.as_slice())
     }
 }
 
@@ -232,5 +339,37 @@ pub(super) fn add_static_map_tasks<T: Real>(
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Groups hold one process's blocks in id order, at most `GROUP_CONTACTS` contacts together, a block
+    /// with more on its own; sweep rounds run grouped, the set-up round (0) block by block.
+    #[test]
+    fn sweep_groups_cut_by_process_and_contacts() {
+        let owners = [0, 0, 1, 0, 1, 0, 0, 0];
+        let active = [0, 1, 2, 3, 4, 5, 7];
+        let contacts = [10, 20, 0, 5, 0, GROUP_CONTACTS + 1, 0, 3];
+        let g = SweepGroups::new(owners.len(), &owners, &active, |b| contacts[b]);
+        let got: Vec<(usize, Vec<usize>)> = g.iter().map(|(f, m)| (f, m.to_vec())).collect();
+        assert_eq!(
+            got,
+            vec![
+                (0, vec![0, 1]),
+                (3, vec![3]),
+                (5, vec![5]),
+                (7, vec![7]),
+                (2, vec![2, 4])
+            ]
+        );
+        assert_eq!(g.members(0, 1), Some(&[0, 1][..]));
+        assert_eq!(g.members(0, 0), None, "the set-up round is one task per block");
+        assert_eq!(g.members(1, 3), None, "block 1 starts no group");
+        assert_eq!(g.members(6, 1), None, "an inactive block is in no group");
+        let none = SweepGroups::default();
+        assert!(!none.runs_round(1) && none.members(0, 1).is_none());
     }
 }

@@ -85,7 +85,7 @@ use blockflow_scheduler::executor::Executor;
 use blockflow_scheduler::trace::{TracePart, TraceWriter};
 use blockflow_scheduler::{GraphBuilder, TaskGraph};
 use dispatch::Dispatch;
-use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks};
+use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks, SweepGroups};
 use kinds::Payload;
 use messages::MessagePlan;
 use ranked::{Driver, Outbox, RankGhosts, RankGraph};
@@ -131,6 +131,8 @@ struct Trace {
 struct Compiled {
     graph: Arc<TaskGraph>,
     messages: Option<RankGraph>,
+    /// The blocks each `rb` task of a Jacobi sweep round runs (none under ranks or `run.no_skip`).
+    groups: SweepGroups,
 }
 
 /// What a rank's pipeline keeps besides the shared-memory one: the ghost regions between ranks, the
@@ -189,8 +191,12 @@ fn compile<T: Real>(
         })
         .collect();
     let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
+    let mut groups = SweepGroups::default();
     if let (Some(parts), true) = (&sim.particles, moving) {
-        add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled, no_skip);
+        // Under ranks every block's task posts its own messages, and `run.no_skip` counts every task
+        // under its block's skip rule: both keep one task per block and round.
+        let grouped = me.is_none() && !no_skip;
+        groups = add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled, no_skip, grouped);
     }
     if no_skip {
         add_static_map_tasks(&mut g, &sim.blocks, owners, k, &fluid);
@@ -200,12 +206,14 @@ fn compile<T: Real>(
         None => Compiled {
             graph: Arc::new(global),
             messages: None,
+            groups,
         },
         Some(me) => {
             let (graph, messages) = RankGraph::project(&global, me);
             Compiled {
                 graph: Arc::new(graph),
                 messages: Some(messages),
+                groups,
             }
         }
     };
@@ -585,6 +593,7 @@ impl<T: Real> Pipeline<T> {
             stats: &self.stats,
             no_skip: self.settings.no_skip,
             ghosts: self.ranks.as_ref().map(|r| &r.ghosts),
+            groups: &compiled.groups,
         };
         let (run, failure) = match (&self.ranks, &compiled.messages) {
             (Some(state), Some(messages)) => {
@@ -640,7 +649,7 @@ impl<T: Real> Pipeline<T> {
             return Err(e);
         }
         let wall = t0.elapsed().as_secs_f64();
-        self.account(&compiled.graph, &run.records, wall, sim, k);
+        self.account(&compiled, &run.records, wall, sim, k);
         if let Some(tr) = self.trace.as_mut() {
             tr.bases.lock().expect("trace bases").push(base);
             tr.writer.add_run(&compiled.graph, &run.records, tr.offset_ns);

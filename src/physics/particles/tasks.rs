@@ -21,8 +21,10 @@
 //! velocities within the sub-step.
 //!
 //! Under `particles.solver = "jacobi"` the phases are the rounds of [`super::jacobi`]: a set-up round
-//! and one round per sweep. Each is one task per block: `rb(b, g)` publishes at its end, since b's
-//! locals take no velocity change from a neighbour ([`Particles::has_sync_tasks`] gives its edges).
+//! and one round per sweep. Each has no `rb_sync`: `rb(b, g)` publishes at its end, since b's locals
+//! take no velocity change from a neighbour ([`Particles::has_sync_tasks`] gives its edges). A sweep
+//! round of b reads only the lists of the round before and writes only b's, so the step graph may run
+//! the sweep rounds of several blocks one after the other in one task.
 //!
 //! Edges (symmetric neighbourhoods make these enough): `rb_sync(n, g-1) → rb(b, g)` and
 //! `rb(n, g) → rb_sync(b, g)` for every neighbour n of b (b included). Write-after-read follows by
@@ -53,7 +55,7 @@ impl Particles {
     /// Whether a phase has the second task `rb_sync`: under block Gauss–Seidel a block's locals take
     /// velocity changes from its neighbours' solves, which must all have finished. Under Jacobi each
     /// block computes its locals' velocities itself (it holds all their contacts), so `rb(b, g)`
-    /// publishes them at its end and a phase is one task per block, with the edges
+    /// publishes them at its end and a phase needs one task per block (or per group of blocks), with the edges
     /// `rb(n, g-1) → rb(b, g)` for every neighbour n of b (b included). They order every access:
     /// `rb(b, g)` reads the lists of parity (g-1) % 2 that `rb(n, g-1)` wrote, and overwrites b's list of
     /// parity g % 2 only after every `rb(n, g-1)` that read it has finished.
