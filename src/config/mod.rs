@@ -70,6 +70,8 @@ impl Config {
 
     /// The configuration as TOML (what `effective.toml` holds: every default and override resolved).
     pub fn to_toml(&self) -> String {
-        toml::to_string(self).unwrap_or_default()
+        let mut c = self.clone();
+        c.particles.relaxation = Some(self.particles.relaxation());
+        toml::to_string(&c).unwrap_or_default()
     }
 }

@@ -80,7 +80,7 @@ pub fn build_particles(cfg: &Config, ps: &ParticleScene, domain: DomainSpec) -> 
         restitution: c.restitution,
         friction: c.friction,
         iterations: c.iterations,
-        relaxation: c.relaxation,
+        relaxation: c.relaxation(),
         grid_threshold: c.grid_threshold,
         contact_margin: c.contact_margin,
         restitution_threshold: c.restitution_threshold.unwrap_or(ps.restitution_threshold),

@@ -50,6 +50,19 @@ pub fn project_impulse(j: DVec3, normal: DVec3, friction: f64) -> DVec3 {
     normal * ln + lt
 }
 
+/// The relaxation of sweep `k` (from 0) of `sweeps`: `p.relaxation` for all but the last sweep, 1 for the
+/// last. Over-relaxation ω > 1 carries load through a chain of contacts in fewer sweeps, but a contact
+/// whose bodies have no other contact then converges only as (1 − ω)^k towards its exact impulse (a
+/// binary collision after 10 sweeps at ω = 1.8 keeps 0.8^10 ≈ 11 % of its error, a restitution 3 % off);
+/// one unrelaxed sweep at the end solves such a contact exactly.
+pub fn final_relaxation(k: usize, sweeps: usize, p: &RigidParams) -> f64 {
+    if k + 1 >= sweeps {
+        1.0
+    } else {
+        p.relaxation
+    }
+}
+
 /// Adds each contact's impulse `impulses[k]` to the velocities of its bodies (`a` receives it, `b` its
 /// negative; fixed bodies none), contact by contact in slice order.
 pub fn apply_impulses(bodies: &mut [Body], contacts: &[Contact], impulses: &[DVec3]) {
@@ -124,11 +137,12 @@ impl JacobiSolve {
         }
     }
 
-    /// One sweep with relaxation `p.relaxation`: every contact's impulse change from the velocities of
-    /// `bodies` as they are now, then all changes added to `bodies` in contact order. Returns the largest
-    /// change of an impulse component (convergence indicator).
-    pub fn sweep(&mut self, bodies: &mut [Body], contacts: &[Contact], p: &RigidParams) -> f64 {
-        let w = p.relaxation;
+    /// One sweep with relaxation `w`: every contact's impulse change from the velocities of `bodies` as
+    /// they are now, then all changes added to `bodies` in contact order. Returns the largest change of
+    /// an impulse component (convergence indicator).
+    ///
+    /// Callers over-relax every sweep but the last ([`final_relaxation`]).
+    pub fn sweep(&mut self, bodies: &mut [Body], contacts: &[Contact], p: &RigidParams, w: f64) -> f64 {
         let mut largest: f64 = 0.0;
         let vel = &mut self.vel;
         vel.clear();
@@ -217,7 +231,7 @@ mod tests {
         let zero = vec![DVec3::ZERO; contacts.len()];
         let mut s = JacobiSolve::new(&bodies, &contacts, &counts(n, &contacts), &targets, &zero, &p, dt);
         for _ in 0..2000 {
-            s.sweep(&mut bodies, &contacts, &p);
+            s.sweep(&mut bodies, &contacts, &p, p.relaxation);
         }
         let m = bodies[0].mass();
         for (k, c) in contacts.iter().enumerate() {
@@ -237,6 +251,48 @@ mod tests {
         for b in &bodies {
             assert!(b.velocity.length() < 1e-12, "body {} moves at {:?}", b.id, b.velocity);
         }
+    }
+
+    #[test]
+    fn a_final_unrelaxed_sweep_solves_an_isolated_collision_exactly_at_any_relaxation() {
+        // Two spheres meet head-on with nothing else touching them (each has one contact, so the split
+        // masses are the true ones): one sweep at ω = 1 gives the exact impulse; 10 sweeps over-relaxed
+        // at ω = 1.8 but the last give it again to rounding, 10 sweeps all at ω = 1.8 miss it by 0.8^10.
+        let dt = 0.1;
+        let pair = || {
+            let mut a = Body::sphere(0, DVec3::ZERO, 1.0, 1.0);
+            let mut b = Body::sphere(1, DVec3::new(2.0 - 1e-9, 0.0, 0.0), 1.0, 1.0);
+            a.velocity = DVec3::new(0.01, 0.0, 0.0);
+            b.velocity = DVec3::new(-0.01, 0.0, 0.0);
+            vec![a, b]
+        };
+        let p = RigidParams {
+            restitution: 0.5,
+            relaxation: 1.8,
+            ..RigidParams::default()
+        };
+        let solve = |sweeps: usize, relax: &dyn Fn(usize) -> f64| {
+            let mut bodies = pair();
+            let contacts = detect(&bodies, &[], 0.0, 128);
+            assert_eq!(contacts.len(), 1);
+            let targets = resolve_targets(&bodies, &contacts, &p, dt);
+            let zero = vec![DVec3::ZERO; 1];
+            let mut s = JacobiSolve::new(&bodies, &contacts, &counts(2, &contacts), &targets, &zero, &p, dt);
+            for k in 0..sweeps {
+                s.sweep(&mut bodies, &contacts, &p, relax(k));
+            }
+            (s.impulse(0, &contacts[0]), bodies[1].velocity.x - bodies[0].velocity.x)
+        };
+        let (exact, rebound) = solve(1, &|_| 1.0);
+        assert!((rebound - 0.5 * 0.02).abs() < 1e-15, "rebound {rebound}");
+        let (last, _) = solve(10, &|k| final_relaxation(k, 10, &p));
+        assert!(
+            (last - exact).length() < 1e-14 * exact.length(),
+            "{last:?} vs {exact:?}"
+        );
+        let (over, _) = solve(10, &|_| 1.8);
+        let miss = (over - exact).length() / exact.length();
+        assert!((miss - 0.8f64.powi(10)).abs() < 1e-9, "relative miss {miss}");
     }
 
     #[test]
@@ -269,8 +325,8 @@ mod tests {
         let mut copy = whole.clone();
         let mut t = JacobiSolve::new(&copy, &sub, &count, &sub_targets, &sub_initial, &p, dt);
         for _ in 0..20 {
-            s.sweep(&mut whole, &contacts, &p);
-            t.sweep(&mut copy, &sub, &p);
+            s.sweep(&mut whole, &contacts, &p, p.relaxation);
+            t.sweep(&mut copy, &sub, &p, p.relaxation);
             assert_eq!(
                 copy[2].velocity.to_array().map(f64::to_bits),
                 whole[2].velocity.to_array().map(f64::to_bits)

@@ -18,7 +18,9 @@
 
 use super::tasks::contact_key_b;
 use super::{BlockBodies, OwnedImpulse, Particles, Work};
-use blockflow_kernels::rigid::{apply_impulses, project_impulse, resolve_targets, Contact, JacobiSolve};
+use blockflow_kernels::rigid::{
+    apply_impulses, final_relaxation, project_impulse, resolve_targets, Contact, JacobiSolve,
+};
 use glam::DVec3;
 
 /// A block's state of the Jacobi solve in the current sub-step (part of its [`Work`]).
@@ -134,7 +136,8 @@ impl Particles {
                 self.dt_sub(),
             )
         });
-        solve.sweep(&mut w.bodies, &contacts, p);
+        let relax = final_relaxation(round - 1, self.rounds - 1, p);
+        solve.sweep(&mut w.bodies, &contacts, p, relax);
         if round + 1 == self.rounds {
             let planes = &self.blocks[b].planes;
             for (k, c) in contacts.iter().enumerate().filter(|(_, c)| c.a < w.locals) {
