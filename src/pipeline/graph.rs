@@ -9,13 +9,26 @@ use crate::physics::particles::Particles;
 use blockflow_kernels::Real;
 use blockflow_scheduler::{GraphBuilder, TaskId};
 
+/// Which blocks' Jacobi sweep rounds may share an `rb` task ([`SweepGroups`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Grouping {
+    /// One task per block and round: `run.no_skip` counts every task under its own block's skip rule.
+    Off,
+    /// Every process's active blocks (a world of one rank).
+    Processes,
+    /// Rank `me`'s blocks whose neighbours are all its own. A block next to another rank's keeps a task
+    /// per round, which posts its velocities to that rank; another rank's block is never grouped here,
+    /// so every rank's graph has the same tasks wherever an edge crosses ranks.
+    Rank(u32),
+}
+
 /// Adds the particle tasks of `k` consecutive steps for every active block: with the fluid (`coupled`),
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
 /// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps (only `rb` under Jacobi). Edges as
 /// documented in [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
-/// active and gets `map`/`reconstruct` even without fluid. With `grouped` under Jacobi, the sweep rounds
-/// run one task per [`SweepGroups`] group (returned; empty otherwise), after every task of the round
-/// before that covers a neighbour of a member.
+/// active and gets `map`/`reconstruct` even without fluid. Under Jacobi with `grouping` other than
+/// [`Grouping::Off`], the sweep rounds run one task per [`SweepGroups`] group (returned; empty
+/// otherwise), after every task of the round before that covers a neighbour of a member.
 #[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
 pub(super) fn add_particle_tasks<T: Real>(
     g: &mut GraphBuilder,
@@ -26,95 +39,27 @@ pub(super) fn add_particle_tasks<T: Real>(
     fluid: &[Ids],
     coupled: bool,
     no_skip: bool,
-    grouped: bool,
+    grouping: Grouping,
 ) -> SweepGroups {
     let nb = parts.blocks.len();
     let s = parts.phases() as usize;
     let active: Vec<usize> = (0..nb).filter(|&b| no_skip || parts.active[b]).collect();
-    let groups = if grouped && !parts.has_sync_tasks() {
-        // SAFETY: the graph is built between runs; no `rb` task runs.
-        SweepGroups::new(nb, owners, &active, |b| unsafe {
-            parts.blocks[b].work().contact_list.len()
-        })
-    } else {
-        SweepGroups::default()
-    };
+    let groups = sweep_groups(parts, owners, &active, grouping);
     let task = |b: usize, payload: Payload| spec(owners[b], b, payload);
-    // Receivers of each block's interior layers inside the same process (their comm reads it directly).
-    let mut local_receivers: Vec<Vec<usize>> = vec![Vec::new(); nb];
-    for blk in blocks {
-        for r in &blk.recv {
-            if owners[r.from] == owners[blk.id] && r.from != blk.id {
-                local_receivers[r.from].push(blk.id);
-            }
-        }
-    }
     let mut sync: Vec<Option<TaskId>> = vec![None; nb];
     for kk in 0..k {
-        let mut forces: Vec<Option<TaskId>> = vec![None; nb];
-        if coupled {
-            let mut maps: Vec<Option<TaskId>> = vec![None; nb];
-            for &b in active.iter().filter(|&&b| no_skip || blocks[b].fluid_cells > 0) {
-                let m = g.add(task(b, Payload::new(TaskKind::Map, kk)));
-                let r = g.add(task(b, Payload::new(TaskKind::Reconstruct, kk)));
-                g.edge(m, r);
-                for &n in &parts.blocks[b].near {
-                    if let Some(sp) = sync[n] {
-                        g.edge(sp, m);
-                    }
-                }
-                if kk > 0 {
-                    if let Some(sw) = fluid[(kk - 1) * nb + b].sweep {
-                        g.edge(sw, m);
-                    }
-                }
-                let f = &fluid[kk * nb + b];
-                if let Some(first) = f.comm.or(f.boundary).or(f.sweep) {
-                    g.edge(r, first);
-                }
-                if let Some(sd) = f.send {
-                    g.edge(r, sd);
-                }
-                for &n in &local_receivers[b] {
-                    if let Some(c) = fluid[kk * nb + n].comm {
-                        g.edge(r, c);
-                    }
-                }
-                maps[b] = Some(m);
-            }
-            for &b in &active {
-                let fo = g.add(task(b, Payload::new(TaskKind::Forces, kk)));
-                for &n in &parts.blocks[b].near {
-                    if let Some(x) = fluid[kk * nb + n].boundary.or(maps[n]) {
-                        g.edge(x, fo);
-                    }
-                }
-                if let Some(sp) = sync[b] {
-                    g.edge(sp, fo);
-                }
-                forces[b] = Some(fo);
-            }
-        }
+        let forces = if coupled {
+            add_coupling_tasks(g, parts, blocks, owners, kk, fluid, &active, &sync, no_skip)
+        } else {
+            vec![None; nb]
+        };
         for sub in 0..s {
-            let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
-            let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
             if groups.runs_round(sub % parts.rounds) {
-                // A sweep round: one task per group, after every task of the round before that covers a
-                // neighbour of a member (the graph's build drops the repeated edges).
-                for (first, members) in groups.iter() {
-                    let t = g.add(task(first, Payload::sub_step(TaskKind::Rb, kk, sub)));
-                    for &m in members {
-                        new_rb[m] = Some(t);
-                        for &n in &parts.blocks[m].near {
-                            if let Some(prev) = sync[n] {
-                                g.edge(prev, t);
-                            }
-                        }
-                    }
-                }
-                sync = new_rb;
+                sync = add_grouped_round(g, parts, owners, &groups, kk, sub, &sync);
                 continue;
             }
+            let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
+            let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
             for &b in &active {
                 new_rb[b] = Some(g.add(task(b, Payload::sub_step(TaskKind::Rb, kk, sub))));
             }
@@ -143,6 +88,119 @@ pub(super) fn add_particle_tasks<T: Real>(
     groups
 }
 
+/// The [`SweepGroups`] of the `active` blocks under `grouping` (none under block Gauss–Seidel, whose
+/// rounds have sync tasks).
+fn sweep_groups(parts: &Particles, owners: &[u32], active: &[usize], grouping: Grouping) -> SweepGroups {
+    if grouping == Grouping::Off || parts.has_sync_tasks() {
+        return SweepGroups::default();
+    }
+    // SAFETY: the graph is built between runs; no `rb` task runs.
+    let contacts = |b: usize| unsafe { parts.blocks[b].work().contact_list.len() };
+    let alone = |b: usize| match grouping {
+        Grouping::Rank(me) => owners[b] != me || parts.blocks[b].near.iter().any(|&n| owners[n] != me),
+        _ => false,
+    };
+    SweepGroups::new(parts.blocks.len(), owners, active, contacts, alone)
+}
+
+/// Adds `map`, `reconstruct` and `forces` of step `kk` for the `active` blocks (`map` and `reconstruct`
+/// only where the block has fluid, or everywhere with `no_skip`), after the last rigid-body tasks `sync`
+/// of the step before; returns each block's `forces` task.
+#[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
+fn add_coupling_tasks<T: Real>(
+    g: &mut GraphBuilder,
+    parts: &Particles,
+    blocks: &[Block<T>],
+    owners: &[u32],
+    kk: usize,
+    fluid: &[Ids],
+    active: &[usize],
+    sync: &[Option<TaskId>],
+    no_skip: bool,
+) -> Vec<Option<TaskId>> {
+    let nb = parts.blocks.len();
+    let task = |b: usize, payload: Payload| spec(owners[b], b, payload);
+    // Receivers of each block's interior layers inside the same process (their comm reads it directly).
+    let mut local_receivers: Vec<Vec<usize>> = vec![Vec::new(); nb];
+    for blk in blocks {
+        for r in &blk.recv {
+            if owners[r.from] == owners[blk.id] && r.from != blk.id {
+                local_receivers[r.from].push(blk.id);
+            }
+        }
+    }
+    let mut maps: Vec<Option<TaskId>> = vec![None; nb];
+    for &b in active.iter().filter(|&&b| no_skip || blocks[b].fluid_cells > 0) {
+        let m = g.add(task(b, Payload::new(TaskKind::Map, kk)));
+        let r = g.add(task(b, Payload::new(TaskKind::Reconstruct, kk)));
+        g.edge(m, r);
+        for &n in &parts.blocks[b].near {
+            if let Some(sp) = sync[n] {
+                g.edge(sp, m);
+            }
+        }
+        if kk > 0 {
+            if let Some(sw) = fluid[(kk - 1) * nb + b].sweep {
+                g.edge(sw, m);
+            }
+        }
+        let f = &fluid[kk * nb + b];
+        if let Some(first) = f.comm.or(f.boundary).or(f.sweep) {
+            g.edge(r, first);
+        }
+        if let Some(sd) = f.send {
+            g.edge(r, sd);
+        }
+        for &n in &local_receivers[b] {
+            if let Some(c) = fluid[kk * nb + n].comm {
+                g.edge(r, c);
+            }
+        }
+        maps[b] = Some(m);
+    }
+    let mut forces: Vec<Option<TaskId>> = vec![None; nb];
+    for &b in active {
+        let fo = g.add(task(b, Payload::new(TaskKind::Forces, kk)));
+        for &n in &parts.blocks[b].near {
+            if let Some(x) = fluid[kk * nb + n].boundary.or(maps[n]) {
+                g.edge(x, fo);
+            }
+        }
+        if let Some(sp) = sync[b] {
+            g.edge(sp, fo);
+        }
+        forces[b] = Some(fo);
+    }
+    forces
+}
+
+/// Adds sweep round `sub` of step `kk` as one `rb` task per group of `groups`, after every task of the
+/// round before (`sync`) that covers a neighbour of a member (the graph's build drops the repeated
+/// edges); returns each member's task.
+fn add_grouped_round(
+    g: &mut GraphBuilder,
+    parts: &Particles,
+    owners: &[u32],
+    groups: &SweepGroups,
+    kk: usize,
+    sub: usize,
+    sync: &[Option<TaskId>],
+) -> Vec<Option<TaskId>> {
+    let mut new_rb: Vec<Option<TaskId>> = vec![None; parts.blocks.len()];
+    for (first, members) in groups.iter() {
+        let t = g.add(spec(owners[first], first, Payload::sub_step(TaskKind::Rb, kk, sub)));
+        for &m in members {
+            new_rb[m] = Some(t);
+            for &n in &parts.blocks[m].near {
+                if let Some(prev) = sync[n] {
+                    g.edge(prev, t);
+                }
+            }
+        }
+    }
+    new_rb
+}
+
 /// Contacts per `rb` task of a Jacobi sweep round at most, unless one block has more: a sweep costs
 /// tens of nanoseconds per contact and a task about half a microsecond to schedule and release.
 const GROUP_CONTACTS: usize = 32;
@@ -165,8 +223,14 @@ pub(super) struct SweepGroups {
 
 impl SweepGroups {
     /// The groups of `active` (ascending block ids) under `owners`, for `nb` blocks, from each block's
-    /// contacts in its last sub-step (`contacts`).
-    fn new(nb: usize, owners: &[u32], active: &[usize], contacts: impl Fn(usize) -> usize) -> Self {
+    /// contacts in its last sub-step (`contacts`); a block for which `alone` holds is a group of its own.
+    fn new(
+        nb: usize,
+        owners: &[u32],
+        active: &[usize],
+        contacts: impl Fn(usize) -> usize,
+        alone: impl Fn(usize) -> bool,
+    ) -> Self {
         let mut by_owner: std::collections::BTreeMap<u32, Vec<usize>> = Default::default();
         for &b in active {
             by_owner.entry(owners[b]).or_default().push(b);
@@ -179,6 +243,14 @@ impl SweepGroups {
             let mut run: Vec<usize> = Vec::new();
             let mut load = 0;
             for &b in blocks {
+                if alone(b) {
+                    if !run.is_empty() {
+                        out.push(std::mem::take(&mut run));
+                        load = 0;
+                    }
+                    out.push(vec![b]);
+                    continue;
+                }
                 let c = contacts(b);
                 if !run.is_empty() && load + c > GROUP_CONTACTS {
                     out.push(std::mem::take(&mut run));
@@ -353,7 +425,7 @@ mod tests {
         let owners = [0, 0, 1, 0, 1, 0, 0, 0];
         let active = [0, 1, 2, 3, 4, 5, 7];
         let contacts = [10, 20, 0, 5, 0, GROUP_CONTACTS + 1, 0, 3];
-        let g = SweepGroups::new(owners.len(), &owners, &active, |b| contacts[b]);
+        let g = SweepGroups::new(owners.len(), &owners, &active, |b| contacts[b], |_| false);
         let got: Vec<(usize, Vec<usize>)> = g.iter().map(|(f, m)| (f, m.to_vec())).collect();
         assert_eq!(
             got,
@@ -369,6 +441,13 @@ mod tests {
         assert_eq!(g.members(0, 0), None, "the set-up round is one task per block");
         assert_eq!(g.members(1, 3), None, "block 1 starts no group");
         assert_eq!(g.members(6, 1), None, "an inactive block is in no group");
+        // A block that must stay alone (under ranks: one next to another rank's) cuts the run around it.
+        let g = SweepGroups::new(owners.len(), &owners, &active, |_| 0, |b| b == 3);
+        let got: Vec<(usize, Vec<usize>)> = g.iter().map(|(f, m)| (f, m.to_vec())).collect();
+        assert_eq!(
+            got,
+            vec![(0, vec![0, 1]), (3, vec![3]), (5, vec![5, 7]), (2, vec![2, 4])]
+        );
         let none = SweepGroups::default();
         assert!(!none.runs_round(1) && none.members(0, 1).is_none());
     }

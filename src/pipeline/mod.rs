@@ -85,7 +85,7 @@ use blockflow_scheduler::executor::Executor;
 use blockflow_scheduler::trace::{TracePart, TraceWriter};
 use blockflow_scheduler::{GraphBuilder, TaskGraph};
 use dispatch::Dispatch;
-use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks, SweepGroups};
+use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks, Grouping, SweepGroups};
 use kinds::Payload;
 use messages::MessagePlan;
 use ranked::{Driver, Outbox, RankGhosts, RankGraph};
@@ -193,10 +193,22 @@ fn compile<T: Real>(
     let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
     let mut groups = SweepGroups::default();
     if let (Some(parts), true) = (&sim.particles, moving) {
-        // Under ranks every block's task posts its own messages, and `run.no_skip` counts every task
-        // under its block's skip rule: both keep one task per block and round.
-        let grouped = me.is_none() && !no_skip;
-        groups = add_particle_tasks(&mut g, parts, &sim.blocks, owners, k, &fluid, coupled, no_skip, grouped);
+        let grouping = match me {
+            _ if no_skip => Grouping::Off,
+            None => Grouping::Processes,
+            Some(me) => Grouping::Rank(me),
+        };
+        groups = add_particle_tasks(
+            &mut g,
+            parts,
+            &sim.blocks,
+            owners,
+            k,
+            &fluid,
+            coupled,
+            no_skip,
+            grouping,
+        );
     }
     if no_skip {
         add_static_map_tasks(&mut g, &sim.blocks, owners, k, &fluid);
