@@ -111,9 +111,12 @@ mod tests {
     use super::*;
     use crate::d3q19::Q;
 
-    /// Links of a 16³ block's face cells towards a resting wall: across the rows (normal x), every element
-    /// lies in a row of its own, so each link touches two lines; along the rows (normal z), the 16 cells of
-    /// a row lie within 3 lines of 8 elements, in 5 source and 5 destination arrays: 16 rows × 3 × 10.
+    /// Links of a block's face cells towards a resting wall: across the rows (normal x, 16³ block),
+    /// every element lies in a row of its own, so each link touches two lines; along the rows (normal z,
+    /// 14³ block, whose row pitch 16 is the ghost-inclusive row), the 14 rows of a plane lie one after
+    /// the other with two ghost elements between them, so in each of the 5 source and 5 destination
+    /// arrays they cover one run of elements, (x0 + 1) + 16 · 1 … (x0 + 14) + 16 · 14 shifted by the
+    /// link's x and y offset: lines 2 … 30, 29 lines per array, 290 for 980 links.
     #[test]
     fn wall_links_across_the_rows_touch_a_line_per_element_along_them_share_lines() {
         let layout = Layout::new::<f64>([16, 16, 16]);
@@ -127,15 +130,17 @@ mod tests {
         }
         assert_eq!(across.len(), 16 * 16 * 5);
         assert_eq!(across.lines(), 2 * across.len());
+        let layout = Layout::new::<f64>([14, 14, 14]);
+        assert_eq!(layout.sx, 16);
         let mut along = Links::<f64>::new(Pattern::Aa);
-        for y in 1..=16 {
-            for x in 1..=16 {
+        for y in 1..=14 {
+            for x in 1..=14 {
                 for q in (1..Q).filter(|&q| C[q][2] == 1) {
                     along.push(&layout, layout.idx(x, y, 1), q, [0.0; 3]);
                 }
             }
         }
-        assert_eq!(along.len(), 16 * 16 * 5);
-        assert_eq!(along.lines(), 16 * 3 * 10);
+        assert_eq!(along.len(), 14 * 14 * 5);
+        assert_eq!(along.lines(), 29 * 10);
     }
 }

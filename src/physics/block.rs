@@ -136,7 +136,7 @@ impl<T: Real> StaticGeometry<T> {
                 }
             }
         }
-        let mut fl = vec![0u8; layout.sxy * fz];
+        let mut fl = vec![0u8; layout.slots()];
         for z in 0..fz {
             for y in 0..fy {
                 for x in 0..fx {
@@ -486,7 +486,7 @@ impl<T: Real> Block<T> {
         let owner = self
             .particle_cells()
             .map(|pc| pc.owner.as_slice())
-            .filter(|o| o.len() == l.sxy * fz);
+            .filter(|o| o.len() == l.slots());
         let mut n = 0;
         for z in 1..fz - 1 {
             for y in 1..fy - 1 {

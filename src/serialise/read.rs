@@ -105,7 +105,7 @@ fn read_overlay(r: &mut Reader, l: &Layout) -> Result<ParticleCells, FormatError
     let mut pc = ParticleCells::default();
     if r.bool()? {
         let runs = r.count(12)?;
-        let mut owner = vec![0u64; l.sxy * fz];
+        let mut owner = vec![0u64; l.slots()];
         let (mut x, mut y, mut z) = (0usize, 0usize, 0usize);
         let total = fx * fy * fz;
         let mut seen = 0usize;

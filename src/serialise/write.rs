@@ -107,7 +107,7 @@ fn write_flags<T: Real>(s: &mut impl Sink, b: &Block<T>) {
 
 fn write_overlay(s: &mut impl Sink, l: &Layout, pc: &ParticleCells) {
     let [fx, fy, fz] = l.full();
-    if pc.owner.len() == l.sxy * fz {
+    if pc.owner.len() == l.slots() {
         put_u8(s, 1);
         let mut runs: Vec<(u64, u32)> = Vec::new();
         for z in 0..fz {

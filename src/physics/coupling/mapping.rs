@@ -33,7 +33,7 @@ pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, b
     let l = b.layout;
     let full = l.full();
     // Cells of the block with its ghost layer (element indices run below the field's stride).
-    let n = l.sxy * full[2];
+    let n = l.slots();
     if shortcuts && bodies.is_empty() && !pc.owned && pc.owner.len() == n {
         // No body near before or now: the static cells are the state; nothing to rebuild or reconstruct.
         if pc.segments.len() != b.segments.len() || pc.fluid_cells != b.fluid_cells {

@@ -245,7 +245,7 @@ mod tests {
         let (v, w) = (DVec3::new(0.01, -0.02, 0.005), DVec3::new(0.0, 0.003, -0.001));
         // SAFETY: single-threaded test.
         let pc = unsafe { blk.particle_cells_mut() };
-        pc.owner = vec![0; l.sxy * (l.size[2] + 2)];
+        pc.owner = vec![0; l.slots()];
         for c in C.iter().skip(1) {
             pc.owner[(lonely as isize + l.offset(*c)) as usize] = 8;
         }
@@ -364,7 +364,7 @@ mod tests {
             let l = blk.layout;
             // SAFETY: single-threaded test.
             let pc = unsafe { blk.particle_cells_mut() };
-            pc.owner = vec![0; l.sxy * (l.size[2] + 2)];
+            pc.owner = vec![0; l.slots()];
             if let Some(x) = solid_at {
                 pc.owner[l.idx(x, 5, 5)] = 8;
             }
