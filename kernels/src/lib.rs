@@ -11,6 +11,7 @@ pub mod coupling;
 pub mod d3q19;
 pub mod field;
 pub mod link_batch;
+pub mod prefetch;
 pub mod real;
 pub mod rigid;
 pub mod simd;

@@ -10,8 +10,8 @@
 //!
 //! | part | paper | `blockflow` |
 //! |---|---|---|
-//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), [F > 0] |
-//! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [F > 0] |
+//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
+//! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [links > 0] (a block without links has no boundary pass) |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |
 //! | RB | eq. (14): S·(a1·(P_L+P_S)² + a2·P_L + a3·P_S + a4·K + a5) | S·[active], S·(P_L+P_S)², S·(P_L+P_S), S·K_seen, S·(list entries scanned), P_L (the force sum, once per step) |
@@ -30,7 +30,7 @@ pub enum Model {
 }
 
 /// Most regressors of any part in any model.
-pub const MAX_TERMS: usize = 6;
+pub const MAX_TERMS: usize = 7;
 
 /// The regressor values of one part for one block and step (the first `len` entries of `v`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,13 +80,19 @@ const BLOCKFLOW: [Terms; 5] = [
         ("runs", "runs of fluid cells"),
         ("breaks", "runs that restart the memory streams"),
         ("active", "1 if F > 0"),
+        ("cells", "C if F > 0"),
+        (
+            "cold_cells",
+            "C if F > 0 and the block has no links (no boundary pass before the sweep)",
+        ),
+        ("near_boundary", "fluid cells next to a wall or body (NB)"),
     ],
     &[
         ("wall_links", "bounce-back links at walls"),
         ("wall_lines", "cache lines the wall links touch"),
         ("particle_links", "links into particle cells"),
         ("link_cells", "fluid cells with a particle link"),
-        ("active", "1 if F > 0"),
+        ("active", "1 if F > 0 and the block has links (a boundary pass runs)"),
     ],
     &[
         ("active", "1 if the mapping left its fast path"),
@@ -168,9 +174,18 @@ fn paper_row(part: usize, q: &Quantities) -> Row {
 
 fn blockflow_row(part: usize, q: &Quantities) -> Row {
     let fluid = f64::from(u8::from(q.f > 0.0));
+    let links = f64::from(u8::from(q.wall_links + q.particle_links > 0.0));
     match part {
-        0 => Row::of(&[q.f, q.runs, q.breaks, fluid]),
-        1 => Row::of(&[q.wall_links, q.wall_lines, q.particle_links, q.link_cells, 1.0].map(|x| x * fluid)),
+        0 => Row::of(&[
+            q.f,
+            q.runs,
+            q.breaks,
+            fluid,
+            q.c * fluid,
+            q.c * fluid * (1.0 - links),
+            q.nb,
+        ]),
+        1 => Row::of(&[q.wall_links, q.wall_lines, q.particle_links, q.link_cells, links].map(|x| x * fluid)),
         2 => Row::of(
             &[
                 q.map_active,
@@ -249,6 +264,23 @@ mod tests {
         // The rigid-body part does not need fluid.
         assert_eq!(m.row(4, &q).as_slice(), &[10.0, 10.0, 10.0, 0.0, 0.0, 1.0]);
         assert_eq!(Model::parse("blockflow"), Some(Model::Blockflow));
+        // A fluid block without links has no boundary pass: no BH work at all, intercept included.
+        let open = Quantities {
+            c: 4096.0,
+            f: 4096.0,
+            ..Default::default()
+        };
+        assert!(m.row(1, &open).as_slice().iter().all(|&x| x == 0.0));
+        let walled = Quantities {
+            wall_links: 5.0,
+            ..open
+        };
+        assert_eq!(m.row(1, &walled).as_slice(), &[5.0, 0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(
+            m.row(0, &open).as_slice(),
+            &[4096.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
+        );
+        assert_eq!(m.row(0, &walled).as_slice(), &[4096.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]);
         assert_eq!(Model::parse(Model::Paper.name()), Some(Model::Paper));
         assert_eq!(Model::parse("cells"), None);
     }

@@ -1,9 +1,8 @@
 //! Small shared vocabulary of the engine: deterministic hashing and pseudo-random numbers, atomic file
-//! writes, a little-endian byte reader, robust statistics and a cache hint. Nothing here knows about fluids, blocks or
+//! writes, a little-endian byte reader, and robust statistics. Nothing here knows about fluids, blocks or
 //! processes.
 
 pub mod bytes;
 pub mod fs;
 pub mod hash;
-pub mod prefetch;
 pub mod stats;

@@ -10,10 +10,10 @@ use crate::config::SurfaceBoundary;
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
 use crate::physics::particle_cells::{BodyForce, ParticleCells};
-use crate::util::prefetch::prefetch;
 use blockflow_kernels::coupling::{link_torque, momentum_exchange, RHO0};
 use blockflow_kernels::d3q19::{C, OPP, Q, W};
 use blockflow_kernels::link_batch::{LinkBatch, LINK_BATCH};
+use blockflow_kernels::prefetch::prefetch;
 use blockflow_kernels::Real;
 use glam::DVec3;
 

@@ -1,4 +1,5 @@
-//! A cache hint for loops whose loads the hardware cannot predict (ghost copies, surface links).
+//! A cache hint for loops whose loads the hardware cannot predict: the runs of a sweep that do not
+//! continue the run before them, the PDFs of surface links.
 
 /// Asks the cache for the line holding `p` (a hint: never faults, whatever the address; nothing on
 /// targets without one).

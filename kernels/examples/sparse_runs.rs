@@ -1,0 +1,72 @@
+//! What a sweep costs per block when its fluid runs are short or sparse: one AA step of 300 blocks of
+//! 16³ cells (f64, about 300 MB, far past L3) for several run patterns, microseconds per block and
+//! nanoseconds per cell and per run. `NB=30` (in L3) or `NB=2` (in L2) give the in-cache figures.
+//!
+//! `cargo run --release -p blockflow-kernels --example sparse_runs`
+
+use blockflow_kernels::field::{Layout, PdfField};
+use blockflow_kernels::sweep::{aa_step, full_segments, Segment};
+use blockflow_kernels::TrtParams;
+use std::time::Instant;
+
+fn main() {
+    let n = 16;
+    let l = Layout::new::<f64>([n, n, n]);
+    let blocks: usize = std::env::var("NB").ok().and_then(|s| s.parse().ok()).unwrap_or(300);
+    let mut fields: Vec<PdfField<f64>> = (0..blocks).map(|b| PdfField::new(l, (b % 8) * 64)).collect();
+    for f in fields.iter_mut() {
+        f.data_mut().fill(1e-3);
+    }
+    let p = TrtParams {
+        tau: 0.6,
+        magic: 3.0 / 16.0,
+        force: [0.0; 3],
+    };
+    // A wall-cut block: plane z holds its first 13z/16 rows (105 rows in all).
+    let rows_of = |z: usize| z * 13 / 16;
+    let runs = |f: &dyn Fn(usize, usize) -> Option<(usize, usize)>| -> Vec<Segment> {
+        let mut v = Vec::new();
+        for z in 1..=n {
+            for y in 1..=n {
+                if let Some((x0, len)) = f(y, z) {
+                    v.push(Segment {
+                        start: l.idx(x0, y, z),
+                        len,
+                    });
+                }
+            }
+        }
+        v
+    };
+    let cases: Vec<(&str, Vec<Segment>)> = vec![
+        ("full block", full_segments(&l)),
+        ("wall-cut, full rows", runs(&|y, z| (y <= rows_of(z)).then_some((1, n)))),
+        ("wall-cut, 7 cells", runs(&|y, z| (y <= rows_of(z)).then_some((1, 7)))),
+        ("8 of 16 cells", runs(&|_, _| Some((1, 8)))),
+        ("8 cells, shifted", runs(&|y, z| Some((1 + (y + z) % 9, 8)))),
+        ("every other row", runs(&|y, z| ((y + z) % 2 == 0).then_some((1, n)))),
+    ];
+    println!("| runs | count | cells | µs per block | ns per cell | ns per run |\n|---|---:|---:|---:|---:|---:|");
+    for round in 0..2 {
+        for (name, segs) in &cases {
+            let cells: usize = segs.iter().map(|s| s.len).sum();
+            let steps = 20;
+            let t = Instant::now();
+            for step in 0..steps {
+                for f in fields.iter_mut() {
+                    aa_step(f, step, segs, &p);
+                }
+            }
+            let per = t.elapsed().as_secs_f64() / (steps as usize * blocks) as f64;
+            if round == 1 {
+                println!(
+                    "| {name} | {} | {cells} | {:.1} | {:.1} | {:.0} |",
+                    segs.len(),
+                    per * 1e6,
+                    per * 1e9 / cells as f64,
+                    per * 1e9 / segs.len() as f64
+                );
+            }
+        }
+    }
+}
