@@ -58,8 +58,10 @@ pub struct CalibrateArgs {
     #[arg(long, conflicts_with = "quick")]
     pub paper: bool,
     /// Further scenes recorded as they are (their own blocks, walls and spheres) for `--with-steps`
-    /// steps each (repeatable). Without it, the default campaign adds configs/hopper.toml and
-    /// configs/hopper-paper32.toml: blocks that walls cut, which the calibration scene does not have.
+    /// steps each (repeatable). Without it, the default campaign adds configs/hopper.toml,
+    /// configs/hopper-paper32.toml and configs/hopper-small.toml: blocks that walls cut, which the
+    /// calibration scene does not have, at three block sizes (so that leaving one run out still leaves
+    /// wall-cut blocks in the fit).
     #[arg(long = "with", value_name = "SCENE")]
     pub with: Vec<PathBuf>,
     /// Steps of each `--with` scene (the first 50 are dropped as in every run).
@@ -75,7 +77,11 @@ pub struct CalibrateArgs {
 
 /// The scenes the default campaign records beside the calibration scene (`--with-steps` steps each):
 /// the hoppers at both block sizes, whose funnel walls cut blocks into short fluid runs.
-pub const DEFAULT_WITH: [&str; 2] = ["configs/hopper.toml", "configs/hopper-paper32.toml"];
+pub const DEFAULT_WITH: [&str; 3] = [
+    "configs/hopper.toml",
+    "configs/hopper-paper32.toml",
+    "configs/hopper-small.toml",
+];
 
 /// Runs `blockflow calibrate` and prints the coefficient table and error statistics.
 pub fn execute(a: CalibrateArgs) -> Result<()> {
@@ -570,6 +576,8 @@ fn fit_and_report(
             step_samples: noise.step.total,
             interval_samples: noise.interval.total,
             step_mad: noise.step_mad,
+            between_blocks: noise.between_blocks.share(),
+            between_blocks_samples: noise.between_blocks.total,
         },
         part_share_median: share_median,
         seconds: t0.elapsed().as_secs_f64(),
@@ -669,6 +677,11 @@ pub struct NoiseReport {
     pub interval_samples: usize,
     /// Median relative MAD of m_tot within a group.
     pub step_mad: f64,
+    /// Share of interval sums of identical blocks within 10 % of their group's median
+    /// ([`estimator::NoiseFloor::between_blocks`]).
+    pub between_blocks: f64,
+    /// Interval sums in such groups.
+    pub between_blocks_samples: usize,
 }
 
 /// What the campaign recorded: the samples, which blocks of each run never hold fluid, the runs, the
@@ -880,7 +893,15 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
             r.noise_floor.step_samples,
             r.noise_floor.interval_samples,
             100.0 * r.noise_floor.step_mad
-        )
+        ) + &if r.noise_floor.between_blocks_samples == 0 {
+            "noise floor between blocks: no 3 blocks had the same quantities through an interval\n".to_string()
+        } else {
+            format!(
+                "noise floor between blocks: interval loads of blocks with the same quantities within 10 % of their group's median: {} ({} interval sums)\n",
+                pct(r.noise_floor.between_blocks),
+                r.noise_floor.between_blocks_samples
+            )
+        }
     };
     s += &format!(
         "{} samples from {} runs in {:.0} s ({} samples of never-fluid blocks left out)\n",

@@ -8,7 +8,8 @@ use crate::physics::simulation::Simulation;
 use blockflow_kernels::Real;
 
 /// What block weights are computed from: every block's Table 1 quantities now (as
-/// [`Quantities::of`] counts them, in block-id order), and whether the scene has no fluid at all.
+/// [`Quantities::for_weights`] counts them: the mapping's jumpy counters averaged over recent steps; in
+/// block-id order), and whether the scene has no fluid at all.
 #[derive(Clone, Debug)]
 pub struct BlockState {
     /// Quantities per block.
@@ -21,7 +22,7 @@ impl BlockState {
     /// The state of every block of `sim` (all held by this process).
     pub fn of<T: Real>(sim: &Simulation<T>) -> Self {
         BlockState {
-            quantities: (0..sim.blocks.len()).map(|b| Quantities::of(sim, b)).collect(),
+            quantities: (0..sim.blocks.len()).map(|b| Quantities::for_weights(sim, b)).collect(),
             dry: sim.fluid_cells() == 0,
         }
     }

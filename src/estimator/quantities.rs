@@ -146,6 +146,44 @@ impl Quantities {
         }
         q
     }
+
+    /// The quantities a balancing step weighs block `b` by: [`Quantities::of`] with the mapping's
+    /// counters that jump from step to step (bodies mapped, bounding-box cells, rows derived, cells
+    /// turned and covered) replaced by their averages over the recent mappings
+    /// ([`crate::physics::particle_cells::MapAverage`]). Call between graph runs.
+    pub fn for_weights<T: Real>(sim: &Simulation<T>, b: usize) -> Quantities {
+        let q = Quantities::of(sim, b);
+        match sim.blocks[b].particle_cells() {
+            Some(pc) if q.rb_active > 0.0 => q.with_map_average(pc.map_average.as_array()),
+            _ => q,
+        }
+    }
+
+    /// These quantities with the mapping's counters set to `average` (in the order of
+    /// [`crate::physics::particle_cells::MapAverage::as_array`]).
+    pub fn with_map_average(self, average: [f64; 5]) -> Quantities {
+        let [map_bodies, box_cells, rows_derived, turned, covered] = average;
+        Quantities {
+            map_bodies,
+            box_cells,
+            rows_derived,
+            turned,
+            covered,
+            ..self
+        }
+    }
+
+    /// The mapping's counters that [`Quantities::for_weights`] averages, in the order of
+    /// [`Quantities::with_map_average`].
+    pub fn map_counts(&self) -> [f64; 5] {
+        [
+            self.map_bodies,
+            self.box_cells,
+            self.rows_derived,
+            self.turned,
+            self.covered,
+        ]
+    }
 }
 
 #[cfg(test)]

@@ -6,7 +6,8 @@
 
 use std::collections::BTreeMap;
 
-use super::{Coefficients, Sample, PARTS};
+use super::{Coefficients, Quantities, Sample, PARTS};
+use crate::physics::particle_cells::MapAverage;
 
 /// Median and MAD of one error distribution (section 3.4, Figure 8).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -124,7 +125,8 @@ pub struct Scores {
     /// measured share (m_tot summed likewise).
     pub interval: Hits,
     /// As `interval`, but the prediction made at the interval's start (eq. 15 of the quantities after
-    /// the step before it, as the balancer computes its weights) against the loads measured over it.
+    /// the step before it, the mapping's counters averaged over recent steps as the balancer computes
+    /// its weights: [`Quantities::for_weights`]) against the loads measured over it.
     pub predictive: Hits,
 }
 
@@ -137,8 +139,34 @@ impl Scores {
     }
 }
 
-/// One block in one step: (block, predicted m_tot, measured m_tot).
-type BlockStep = (usize, f64, f64);
+/// One block in one step: (block, predicted m_tot, measured m_tot, the balancer's weight: predicted
+/// m_tot from [`Quantities::for_weights`]).
+type BlockStep = (usize, f64, f64, f64);
+
+/// The balancer's weight of every sample ([`Quantities::for_weights`]): eq. (15) with the mapping's
+/// counters averaged ([`MapAverage`]) over the block's earlier samples of its run in which it had
+/// particle tasks, from the first such sample on.
+fn balancer_weights(c: &Coefficients, samples: &[Sample]) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..samples.len()).collect();
+    order.sort_by_key(|&i| (samples[i].run, samples[i].block, samples[i].step));
+    let mut w = vec![0.0; samples.len()];
+    let mut avg = MapAverage::default();
+    let mut last: Option<(usize, usize)> = None;
+    for i in order {
+        let s = &samples[i];
+        if last != Some((s.run, s.block)) {
+            avg = MapAverage::default();
+            last = Some((s.run, s.block));
+        }
+        w[i] = if s.q.rb_active > 0.0 {
+            avg.update(s.q.map_counts());
+            c.total(&s.q.with_map_average(avg.as_array()))
+        } else {
+            c.total(&s.q)
+        };
+    }
+    w
+}
 
 /// Scores `c` on `samples` (several runs, blocks and steps in any order) per step and per interval of
 /// `interval` steps. Intervals: per run, from the run's first sampled step s₀, the steps
@@ -155,12 +183,13 @@ pub fn score(c: &Coefficients, samples: &[Sample], interval: u64) -> Scores {
     if interval == 0 {
         return sc;
     }
+    let weights = balancer_weights(c, samples);
     let mut by_step: BTreeMap<(usize, u64), Vec<BlockStep>> = BTreeMap::new();
-    for s in samples {
+    for (s, w) in samples.iter().zip(weights) {
         by_step
             .entry((s.run, s.step))
             .or_default()
-            .push((s.block, c.total(&s.q), s.m.total()));
+            .push((s.block, c.total(&s.q), s.m.total(), w));
     }
     for v in by_step.values_mut() {
         v.sort_by_key(|x| x.0);
@@ -195,7 +224,7 @@ pub fn score(c: &Coefficients, samples: &[Sample], interval: u64) -> Scores {
             if !complete {
                 break;
             }
-            let w: Vec<f64> = at_start.iter().map(|x| x.1).collect();
+            let w: Vec<f64> = at_start.iter().map(|x| x.3).collect();
             let (sp, sm, sw) = (p.iter().sum::<f64>(), m.iter().sum::<f64>(), w.iter().sum::<f64>());
             if !(sm > 0.0 && sm.is_finite()) {
                 continue;
@@ -226,6 +255,13 @@ pub struct NoiseFloor {
     pub interval: Hits,
     /// Median relative MAD of m_tot within a group (per step).
     pub step_mad: f64,
+    /// Between blocks: the interval sums of blocks whose quantities are the same as each other's and
+    /// constant through the interval (e.g. the fully fluid blocks of a hopper), in groups of at least
+    /// 3 blocks of one run and interval, each against the group's median. Any model of the quantities
+    /// predicts one load for all of them, so this bounds the interval shares as `interval` does, for
+    /// what differs between blocks (where in memory and in the step's order each one runs) rather than
+    /// between steps.
+    pub between_blocks: Hits,
 }
 
 /// [`NoiseFloor`] of `samples` (any order) for intervals of `interval` steps.
@@ -263,7 +299,62 @@ pub fn noise_floor(samples: &[Sample], interval: u64) -> NoiseFloor {
         i = j;
     }
     nf.step_mad = median(&mads);
+    nf.between_blocks = between_blocks(&order, interval.max(1));
     nf
+}
+
+/// [`NoiseFloor::between_blocks`] of `order` (samples with m_tot > 0 sorted by run, block and step),
+/// with intervals placed as in [`score`]: (s₀ + k·I, s₀ + (k+1)·I] from each run's first sampled step.
+fn between_blocks(order: &[&Sample], interval: u64) -> Hits {
+    let mut first: BTreeMap<usize, u64> = BTreeMap::new();
+    for s in order {
+        let e = first.entry(s.run).or_insert(s.step);
+        *e = (*e).min(s.step);
+    }
+    // (run, interval) → groups of (quantities, interval sums of its blocks).
+    type Groups = Vec<(Quantities, Vec<f64>)>;
+    let mut groups: BTreeMap<(usize, u64), Groups> = BTreeMap::new();
+    let mut i = 0;
+    while i < order.len() {
+        let s = order[i];
+        let s0 = first[&s.run];
+        if s.step <= s0 {
+            i += 1;
+            continue;
+        }
+        let k = (s.step - s0 - 1) / interval;
+        // The block's run of samples in interval k: complete (all I steps) and unchanged.
+        let mut j = i;
+        let mut sum = 0.0;
+        let mut same = true;
+        while j < order.len() {
+            let t = order[j];
+            if t.run != s.run || t.block != s.block || t.step <= s0 || (t.step - s0 - 1) / interval != k {
+                break;
+            }
+            same &= t.q == s.q && t.step == s.step + (j - i) as u64;
+            sum += t.m.total();
+            j += 1;
+        }
+        if same && (j - i) as u64 == interval {
+            let g = groups.entry((s.run, k)).or_default();
+            match g.iter_mut().find(|(q, _)| *q == s.q) {
+                Some((_, sums)) => sums.push(sum),
+                None => g.push((s.q, vec![sum])),
+            }
+        }
+        i = j;
+    }
+    let mut hits = Hits::default();
+    for (_, sums) in groups.into_values().flatten() {
+        if sums.len() >= 3 {
+            let med = median(&sums);
+            for x in &sums {
+                hits.count((x - med) / med);
+            }
+        }
+    }
+    hits
 }
 
 #[cfg(test)]
@@ -434,5 +525,90 @@ mod tests {
         assert_eq!(nf.step, Hits { within: 32, total: 42 });
         // Four windows of 5 per block: sums 5 (block 0), 5.6 or 5.9 (block 1, within 3 % of 5.75).
         assert_eq!(nf.interval, Hits { within: 8, total: 8 });
+    }
+
+    /// Samples of run 0 for steps 0..=`steps` and blocks 0..`blocks`, quantities and times from `f(block, step)`.
+    fn run_of(steps: u64, blocks: usize, f: impl Fn(usize, u64) -> (Quantities, PartTimes)) -> Vec<Sample> {
+        (0..=steps)
+            .flat_map(|step| (0..blocks).map(move |block| (block, step)))
+            .map(|(block, step)| {
+                let (q, m) = f(block, step);
+                Sample {
+                    run: 0,
+                    step,
+                    block,
+                    q,
+                    m,
+                }
+            })
+            .collect()
+    }
+
+    /// The predictive share weighs blocks as the balancer does, with the mapping's counters averaged:
+    /// a block that turns 20 cells on odd steps and none on even ones (as a sphere crossing cell planes
+    /// does) costs the same over an interval as one that turns 10 every step, and its weight at an even
+    /// start step is its average (8.69 after 20 steps, 9.29 after 40: within 10 %), not the 0 of that step.
+    #[test]
+    fn predictive_weights_average_the_mapping_counters() {
+        let mut c = Coefficients::zeros(Model::Blockflow, Provenance::default());
+        c.parts[3] = vec![0.0, 1.0, 0.0];
+        let samples = run_of(60, 2, |b, step| {
+            let q = Quantities {
+                c: 1000.0,
+                f: 1000.0,
+                rb_active: 1.0,
+                turned: if b == 0 { 10.0 } else { 20.0 * (step % 2) as f64 },
+                ..Default::default()
+            };
+            let m = PartTimes {
+                coup2: 10.0,
+                ..Default::default()
+            };
+            (q, m)
+        });
+        let sc = score(&c, &samples, 20);
+        // Intervals (0,20], (20,40], (40,60]: each block's sum predicted exactly (200 turned cells).
+        assert_eq!(sc.interval, Hits { within: 6, total: 6 });
+        // At step 0 the average is that step's 0; at steps 20 and 40 it is within 10 % of 10.
+        assert_eq!(sc.predictive, Hits { within: 4, total: 6 });
+    }
+
+    /// Blocks with the same quantities throughout an interval are compared with their group's median
+    /// interval sum: a block 30 % slower than three identical ones misses, a block whose quantities
+    /// change within an interval and a group of fewer than 3 blocks are not scored.
+    #[test]
+    fn between_blocks_floor_compares_identical_blocks_within_an_interval() {
+        let q = Quantities {
+            c: 1000.0,
+            f: 1000.0,
+            ..Default::default()
+        };
+        let other = Quantities { f: 900.0, ..q };
+        let samples = run_of(20, 7, |b, step| {
+            // Blocks 0-3 identical; block 4 changes at step 8 (interval (5, 10]); blocks 5 and 6 form a
+            // group of two.
+            let q = match b {
+                4 if step >= 8 => other,
+                5 | 6 => other,
+                _ => q,
+            };
+            let m = PartTimes {
+                lbm: if b == 3 { 1.3 } else { 1.0 },
+                ..Default::default()
+            };
+            (q, m)
+        });
+        let nf = noise_floor(&samples, 5);
+        // Intervals (0,5], (5,10], (10,15], (15,20]: in the first, blocks 0-4 with sums 5, 5, 5, 6.5, 5;
+        // in the second, blocks 0-3 (block 4 changed); in the last two, blocks 0-3 and the group of
+        // three that block 4 now makes with blocks 5 and 6. Block 3 misses in each interval.
+        let expected_total = 5 + 4 + 4 + 4 + 3 + 3;
+        assert_eq!(
+            nf.between_blocks,
+            Hits {
+                within: expected_total - 4,
+                total: expected_total
+            }
+        );
     }
 }

@@ -97,6 +97,63 @@ pub struct MapWork {
     pub rows_derived: u64,
 }
 
+/// Exponential averages, over the mappings of a block, of the mapping's work counters that jump from
+/// step to step (a sphere crossing a cell plane turns and covers a whole cap of cells at once): what
+/// the workload estimator weighs a block by when it balances, so that one step's jump does not decide
+/// where a block goes for the next interval. Each mapping moves every average by
+/// [`MapAverage::WEIGHT`] of the way to its own counts; the first sets them. Working memory of the
+/// balancer only: the block's bytes (migration between ranks, checkpoints) do not carry it, so after a
+/// restart or a move between ranks the averages start again from the next mapping.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MapAverage {
+    /// Whether a mapping has set the averages.
+    pub started: bool,
+    /// Bodies mapped.
+    pub bodies: f64,
+    /// Bounding-box cells visited.
+    pub box_cells: f64,
+    /// Rows derived again.
+    pub rows_derived: f64,
+    /// Cells turned fluid.
+    pub turned: f64,
+    /// Cells covered.
+    pub covered: f64,
+}
+
+impl MapAverage {
+    /// The weight of the newest mapping (an average over about 2 / WEIGHT − 1 = 15 steps).
+    pub const WEIGHT: f64 = 0.125;
+
+    /// The counts in the order of the fields.
+    pub fn as_array(&self) -> [f64; 5] {
+        [
+            self.bodies,
+            self.box_cells,
+            self.rows_derived,
+            self.turned,
+            self.covered,
+        ]
+    }
+
+    /// Folds one mapping's counts (in the order of [`MapAverage::as_array`]) into the averages.
+    pub fn update(&mut self, counts: [f64; 5]) {
+        let [bodies, box_cells, rows_derived, turned, covered] = if self.started {
+            let old = self.as_array();
+            std::array::from_fn(|i| old[i] + Self::WEIGHT * (counts[i] - old[i]))
+        } else {
+            counts
+        };
+        *self = MapAverage {
+            started: true,
+            bodies,
+            box_cells,
+            rows_derived,
+            turned,
+            covered,
+        };
+    }
+}
+
 /// The particle overlay of one block.
 #[derive(Clone, Debug, Default)]
 pub struct ParticleCells {
@@ -141,6 +198,8 @@ pub struct ParticleCells {
     pub forces: Vec<BodyForce>,
     /// What the last mapping did.
     pub map_work: MapWork,
+    /// What the mappings did, averaged over the recent ones.
+    pub map_average: MapAverage,
 }
 
 impl ParticleCells {

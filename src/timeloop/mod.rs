@@ -149,7 +149,7 @@ impl<T: Real> TimeLoop<T> {
         let held = self.sim.blocks.iter().filter(|b| b.is_held());
         let mine = held
             .map(|b| {
-                let q = Quantities::of(&self.sim, b.id);
+                let q = Quantities::for_weights(&self.sim, b.id);
                 (b.id, serde_json::to_vec(&q).expect("quantities serialise"))
             })
             .collect();

@@ -30,6 +30,20 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
 /// With `shortcuts = false` (`run.no_skip`) every row of every block is derived again, which gives the
 /// same overlay.
 pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, shortcuts: bool) {
+    map_overlay(d, b, pc, bodies, shortcuts);
+    let w = pc.map_work;
+    let counts = [
+        pc.bodies.len() as f64,
+        w.box_cells as f64,
+        w.rows_derived as f64,
+        pc.turned.len() as f64,
+        pc.covered.len() as f64,
+    ];
+    pc.map_average.update(counts);
+}
+
+/// The overlay of [`map_with`], without the averages of its work.
+fn map_overlay<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, shortcuts: bool) {
     let l = b.layout;
     let full = l.full();
     // Cells of the block with its ghost layer (element indices run below the field's stride).
