@@ -9,7 +9,8 @@
 //! - [`Model`] ([`model`]): the paper's eqs. (10)–(14) or this engine's form of them (regressors that
 //!   are the work its tasks do).
 //! - [`fit()`] ([`mod@fit`]): one weighted (non-negative where the model asks) least-squares problem
-//!   per part; [`cross_validate`]: leave-one-run-out validation.
+//!   per part, or per group of parts ([`Model::fit_groups`]: LBM and BH under `blockflow`);
+//!   [`cross_validate`]: leave-one-run-out validation.
 //! - [`evaluate`] and [`score`] ([`stats`]): E_X = (WL_X − m_X)/m_tot per sample, median and MAD per
 //!   part and of E_tot, and the shares within 10 % per step (the paper's statistic: over 85 %) and per
 //!   balancing interval (what the balancer uses).
