@@ -98,7 +98,8 @@ fn nnls(x: &DMatrix<f64>, y: &DVector<f64>) -> Vec<f64> {
 /// about equally well (the regressors of LBM and BH are correlated: NB, links and lines grow with the
 /// walls), the one closest to the measured split; too little to move the sum (on a default campaign
 /// the interval statistics stay within 0.5 point of the sum fitted alone, while the parts' median
-/// errors shrink from about ±12 % to under 5 % of m_tot; with 0.1 the sum loses 1–2 points).
+/// errors shrink from about ±12 % to under 5 % of m_tot; with 0.1 the interval statistics lose about
+/// a point).
 const PART_WEIGHT: f64 = 0.01;
 
 /// Sums over one block's samples in one fitting window: the regressors and m_X of every part of a
