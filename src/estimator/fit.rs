@@ -162,10 +162,8 @@ fn fit_parts(samples: &[Sample], model: Model, parts: &[usize], window: u64) -> 
         }
         solve_scaled(x, &y, model.non_negative())
     };
-    parts
-        .iter()
-        .enumerate()
-        .map(|(i, _)| a[starts[i]..starts[i] + lens[i]].to_vec())
+    (0..parts.len())
+        .map(|i| a[starts[i]..starts[i] + lens[i]].to_vec())
         .collect()
 }
 
@@ -464,9 +462,6 @@ mod tests {
         assert!(share_odd <= 1.0 - 0.9 * run3, "{share_odd}");
     }
 
-    /// NNLS against a case solved by hand: y = 2·x1 − 1·x2 with x1, x2 positively correlated; the
-    /// constrained optimum drops x2 (its coefficient would be negative) and refits x1 alone:
-    /// a1 = (x1·y)/(x1·x1).
     /// Blockflow-model samples with wall blocks: F fluid cells and `lines` wall lines per block; LBM
     /// and BH times from `lbm(f, lines)` and `bh(lines)`, one sample per block and step, 4 runs.
     fn wall_samples(lbm: impl Fn(f64, f64) -> f64, bh: impl Fn(f64) -> f64) -> Vec<Sample> {
@@ -537,6 +532,9 @@ mod tests {
         assert_eq!(Model::Blockflow.fit_groups()[0], &[0, 1]);
     }
 
+    /// NNLS against a case solved by hand: y = 2·x1 − 1·x2 with x1, x2 positively correlated; the
+    /// constrained optimum drops x2 (its coefficient would be negative) and refits x1 alone:
+    /// a1 = (x1·y)/(x1·x1).
     #[test]
     fn nnls_drops_a_negative_direction_and_refits_the_rest() {
         let x1 = [1.0, 2.0, 3.0, 4.0];
