@@ -161,3 +161,46 @@ fn test_sized_study_writes_table_and_figures() {
         assert!(json["strategies"][1][key].is_number(), "study.json: {key}");
     }
 }
+
+/// The measured block loads (eq. 16) account for every task's CPU time exactly once: under Jacobi one
+/// `rb` task runs the sweep round of a group of blocks and its time is shared among them (by each
+/// member's time on the monotonic clock), so the loads of all blocks sum to the CPU time of the run's
+/// workload tasks, to rounding (1e-12 relative).
+#[test]
+fn block_loads_share_grouped_rounds_without_loss() {
+    use blockflow::physics::parts::Part;
+    let c = cfg("hopper-small.toml", &["processes.steps_per_graph=4"]);
+    let mut tl = timeloop_of(&c);
+    tl.advance(40).expect("stable");
+    let run = tl.pipeline().last_run().expect("a graph ran");
+    let tasks: f64 = run
+        .graph
+        .specs()
+        .iter()
+        .zip(run.durations_ns)
+        .filter(|(s, _)| Part::from_index(s.part).is_workload())
+        .map(|(_, &ns)| ns as f64 * 1e-9)
+        .sum();
+    let rb_tasks = run
+        .graph
+        .specs()
+        .iter()
+        .filter(|s| Part::from_index(s.part) == Part::RigidBody)
+        .count();
+    let phases = tl.sim().particles.as_ref().unwrap().phases() as usize;
+    let active = tl
+        .sim()
+        .particles
+        .as_ref()
+        .unwrap()
+        .active
+        .iter()
+        .filter(|&&a| a)
+        .count();
+    assert!(rb_tasks < run.steps * phases * active, "some sweep rounds run grouped");
+    let loads: f64 = run.block_load.iter().sum();
+    assert!(
+        (loads - tasks).abs() <= 1e-12 * tasks,
+        "block loads {loads} s, tasks {tasks} s"
+    );
+}

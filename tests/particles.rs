@@ -62,18 +62,23 @@ fn incline_rolls_and_slides_with_the_analytic_acceleration() {
 
 /// Pair collisions on a block face: the head-on rebound ratio equals the restitution coefficient
 /// within 1 %; linear and angular momentum are conserved to 1e-12 relative (impulses act on both bodies
-/// once, whichever block owns the contact). With three rounds per sub-step the same holds: later rounds
-/// keep the first round's restitution target instead of applying it again. So does the Jacobi solver,
-/// where both blocks of a contact compute its impulse from the same published velocities.
+/// once, whichever block owns the contact). The Jacobi solver (the default) computes a contact's
+/// impulse on both of its blocks from the same published velocities; block Gauss–Seidel solves it on
+/// its owner, and with three rounds per sub-step later rounds keep the first round's restitution target
+/// instead of applying it again.
 #[test]
 fn collisions_conserve_momentum_and_rebound_with_restitution() {
-    for (e, solver) in [(0.2, "1"), (0.5, "1"), (0.9, "1"), (0.5, "3"), (0.5, "jacobi")] {
+    let gs = "particles.solver=\"block_gauss_seidel\"";
+    for (e, solver) in [
+        (0.2, &[][..]),
+        (0.5, &[][..]),
+        (0.9, &[][..]),
+        (0.5, &[gs, "particles.rounds=1"][..]),
+        (0.5, &[gs, "particles.rounds=3"][..]),
+    ] {
         let set = format!("particles.restitution={e}");
-        let r = match solver {
-            "jacobi" => "particles.solver=\"jacobi\"".to_string(),
-            rounds => format!("particles.rounds={rounds}"),
-        };
-        let s = run("collision.toml", &[&set, &r]);
+        let sets: Vec<&str> = std::iter::once(set.as_str()).chain(solver.iter().copied()).collect();
+        let s = run("collision.toml", &sets);
         let r = observable(&s, "restitution_head_on");
         assert!((r - e).abs() <= 0.01 * e, "e = {e}: measured {r}");
         assert!(observable(&s, "momentum_error") <= 1e-12);
@@ -83,7 +88,7 @@ fn collisions_conserve_momentum_and_rebound_with_restitution() {
     }
 }
 
-/// The default granular box settles (1000 steps): max overlap below 1 % of D and kinetic energy down by four orders
+/// The default granular box (Jacobi) settles (1000 steps): max overlap below 1 % of D and kinetic energy down by four orders
 /// of magnitude from the start (it only gains energy from the fall before the pile forms).
 #[test]
 fn granular_box_settles_with_small_overlap() {
@@ -140,15 +145,17 @@ fn granular_box_bitwise_identical_for_any_assignment() {
 /// round does work).
 #[test]
 fn granular_box_with_rounds_bitwise_identical_for_any_assignment() {
+    let gs = "particles.solver=\"block_gauss_seidel\"";
     let base = [
         "scene.count=250",
         "processes.steps_per_graph=3",
+        gs,
         "particles.rounds=2",
         "particles.iterations=5",
     ];
     let steps = 250;
     let want = granular_checksum_serial(&base, steps);
-    let one_round = granular_checksum_serial(&["scene.count=250", "particles.iterations=5"], steps);
+    let one_round = granular_checksum_serial(&["scene.count=250", gs, "particles.iterations=5"], steps);
     assert_ne!(want, one_round, "a second round changes the solve");
     for p in [1, 3] {
         let mut sets: Vec<String> = base.iter().map(|s| s.to_string()).collect();
@@ -195,8 +202,9 @@ fn jacobi_granular_box_is_bitwise_identical_for_any_block_layout() {
         want,
         "8 slabs"
     );
-    let gs_one = granular_checksum_serial(&["scene.count=250", one[0], one[1]], steps);
-    let gs_16 = granular_checksum_serial(&["scene.count=250"], steps);
+    let gs = "particles.solver=\"block_gauss_seidel\"";
+    let gs_one = granular_checksum_serial(&["scene.count=250", gs, one[0], one[1]], steps);
+    let gs_16 = granular_checksum_serial(&["scene.count=250", gs], steps);
     assert_ne!(gs_one, gs_16, "block Gauss–Seidel depends on the layout");
     assert_ne!(gs_one, want, "the solvers differ");
     for p in [1, 3] {
@@ -214,11 +222,19 @@ fn jacobi_granular_box_is_bitwise_identical_for_any_block_layout() {
     }
 }
 
-/// The Jacobi solver settles the default granular box (1000 steps) as tightly as the test above asks of
-/// block Gauss–Seidel: max overlap below 1 % of D, kinetic energy four orders below the fall's.
+/// Block Gauss–Seidel (20 sub-steps of 10 sweeps) settles the granular box (1000 steps) as the test
+/// above asks of the default Jacobi solver: max overlap below 1 % of D, kinetic energy four orders below
+/// the fall's.
 #[test]
-fn jacobi_granular_box_settles_with_small_overlap() {
-    let s = run("granular_box.toml", &["run.steps=1000", "particles.solver=\"jacobi\""]);
+fn block_gauss_seidel_granular_box_settles_with_small_overlap() {
+    let s = run(
+        "granular_box.toml",
+        &[
+            "run.steps=1000",
+            "particles.solver=\"block_gauss_seidel\"",
+            "particles.iterations=10",
+        ],
+    );
     let ov = observable(&s, "max_overlap");
     assert!(ov < 0.01, "max overlap {ov} D");
     let peak = 500.0 * 0.5 * (4.0 / 3.0 * std::f64::consts::PI * 1.75f64.powi(3)) * 2.0 * 2e-3 * 12.0;

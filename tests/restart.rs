@@ -151,7 +151,11 @@ fn restart_is_bitwise_granular_box_with_rounds() {
     restart_matches(
         "granular-rounds",
         "granular_box.toml",
-        &["particles.rounds=2", "particles.iterations=5"],
+        &[
+            "particles.solver=\"block_gauss_seidel\"",
+            "particles.rounds=2",
+            "particles.iterations=5",
+        ],
         40,
         &["--processes", "1"],
         &["--processes", "3", "--balance", "hilbert", "--interval", "7"],

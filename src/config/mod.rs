@@ -72,6 +72,7 @@ impl Config {
     pub fn to_toml(&self) -> String {
         let mut c = self.clone();
         c.particles.relaxation = Some(self.particles.relaxation());
+        c.particles.iterations = Some(self.particles.iterations());
         toml::to_string(&c).unwrap_or_default()
     }
 }

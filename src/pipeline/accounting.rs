@@ -12,6 +12,7 @@ use crate::physics::simulation::Simulation;
 use blockflow_kernels::Real;
 use blockflow_scheduler::{TaskGraph, TaskRecord};
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 /// Messages and bytes by what the messages carry.
@@ -184,6 +185,21 @@ impl<T: Real> Pipeline<T> {
         sim: &Simulation<T>,
         k: usize,
     ) {
+        let member_ns = std::mem::take(&mut self.member_ns);
+        self.account_shared(compiled, records, wall, sim, k, &member_ns);
+        self.member_ns = member_ns;
+    }
+
+    /// [`Pipeline::account`] with the grouped rounds' member times `member_ns`.
+    fn account_shared(
+        &mut self,
+        compiled: &Compiled,
+        records: &[TaskRecord],
+        wall: f64,
+        sim: &Simulation<T>,
+        k: usize,
+        member_ns: &[AtomicU64],
+    ) {
         let graph = &*compiled.graph;
         let rounds = sim.particles.as_ref().map_or(1, |p| p.rounds);
         let nb = sim.blocks.len();
@@ -210,18 +226,34 @@ impl<T: Real> Pipeline<T> {
             if let Some(Some(rule)) = rule_of.get(i) {
                 t.unskipped_cpu[*rule as usize] += cpu;
             }
-            // A group's task time is shared equally among its members.
+            // A group's task time is shared among its members by their monotonic time in the step's
+            // grouped rounds (equally where none was measured).
             let one = [spec.block as usize];
             let blocks = match payload.kind {
                 TaskKind::Rb => compiled.groups.members(one[0], payload.sub % rounds).unwrap_or(&one),
                 _ => &one,
             };
+            let ns = |b: usize| {
+                member_ns
+                    .get(payload.step * nb + b)
+                    .map_or(0, |x| x.load(Ordering::Relaxed))
+            };
+            let measured: u64 = if blocks.len() > 1 {
+                blocks.iter().map(|&b| ns(b)).sum()
+            } else {
+                0
+            };
             for &b in blocks {
+                let share = if measured > 0 {
+                    ns(b) as f64 / measured as f64
+                } else {
+                    1.0 / blocks.len() as f64
+                };
                 if record_parts {
-                    last.block_part_ns[payload.step * nb + b][part] += r.cpu_ns / blocks.len() as u64;
+                    last.block_part_ns[payload.step * nb + b][part] += (r.cpu_ns as f64 * share).round() as u64;
                 }
                 if part.is_workload() {
-                    last.block_load[b] += cpu / blocks.len() as f64;
+                    last.block_load[b] += cpu * share;
                 }
             }
             last.durations_ns.push(r.cpu_ns);

@@ -91,6 +91,7 @@ use messages::MessagePlan;
 use ranked::{Driver, Outbox, RankGhosts, RankGraph};
 use skip::{count_tasks, GraphCounts};
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
@@ -253,6 +254,9 @@ pub struct Pipeline<T: Real> {
     plan: MessagePlan<T>,
     sizes: Arc<MessageSizes>,
     stats: Vec<Mutex<SweepStats>>,
+    /// Monotonic nanoseconds each member of a grouped Jacobi sweep round spent, summed per (step in the
+    /// run, block): how a group's CPU time is shared among its members.
+    member_ns: Vec<AtomicU64>,
     totals: Totals,
     last: LastRun,
     trace: Option<Trace>,
@@ -294,6 +298,7 @@ impl<T: Real> Pipeline<T> {
             plan,
             sizes: Arc::new(MessageSizes::of(sim)),
             stats: Vec::new(),
+            member_ns: Vec::new(),
             totals: Totals::default(),
             last: LastRun::default(),
             trace: None,
@@ -595,6 +600,12 @@ impl<T: Real> Pipeline<T> {
         if self.stats.len() < k * nb {
             self.stats.resize_with(k * nb, || Mutex::new(SweepStats::default()));
         }
+        if self.member_ns.len() < k * nb {
+            self.member_ns.resize_with(k * nb, || AtomicU64::new(0));
+        }
+        for x in &self.member_ns {
+            x.store(0, Ordering::Relaxed);
+        }
         self.graph(sim, k);
         let compiled = self.graphs.remove(&k).expect("graph built above");
         let base = sim.step;
@@ -606,6 +617,7 @@ impl<T: Real> Pipeline<T> {
             no_skip: self.settings.no_skip,
             ghosts: self.ranks.as_ref().map(|r| &r.ghosts),
             groups: &compiled.groups,
+            member_ns: &self.member_ns,
         };
         let (run, failure) = match (&self.ranks, &compiled.messages) {
             (Some(state), Some(messages)) => {

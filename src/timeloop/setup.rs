@@ -79,7 +79,7 @@ pub fn build_particles(cfg: &Config, ps: &ParticleScene, domain: DomainSpec) -> 
         fluid_density: if cfg.fluid.enabled { 1.0 } else { 0.0 },
         restitution: c.restitution,
         friction: c.friction,
-        iterations: c.iterations,
+        iterations: c.iterations(),
         relaxation: c.relaxation(),
         grid_threshold: c.grid_threshold,
         contact_margin: c.contact_margin,

@@ -93,8 +93,8 @@ impl Particles {
         }
     }
 
-    /// Round `round` ≥ 1 of a Jacobi sub-step in block `b`: one sweep (module docs).
-    pub(super) fn jacobi_sweep(&self, b: usize, prev: usize, round: usize, w: &mut Work) {
+    /// Round `round` ≥ 1 of phase `g`, a Jacobi sub-step, in block `b`: one sweep (module docs).
+    pub(super) fn jacobi_sweep(&self, b: usize, g: u64, prev: usize, round: usize, w: &mut Work) {
         w.owned.clear();
         if w.contact_list.is_empty() {
             return;
@@ -108,10 +108,23 @@ impl Particles {
                 // SAFETY: rb(b, g) runs after rb_sync(h, g - 1) of every neighbour h (tasks' module docs);
                 // a gathered body's home is a neighbour of b.
                 let list = unsafe { self.blocks[home as usize].published(prev) };
-                let index = list
-                    .bodies
-                    .binary_search_by_key(&body.id, |x| x.id)
-                    .expect("a gathered body is published by its home in round 0");
+                let Ok(index) = list.bodies.binary_search_by_key(&body.id, |x| x.id) else {
+                    // Only after a body ran away (already recorded as a failure): it was gathered from a
+                    // list whose home for it is no longer a neighbour that publishes it. The sub-step's
+                    // sweeps stop here; the run ends with the recorded failure.
+                    self.fail(
+                        g,
+                        b,
+                        format!(
+                            "body {} gathered by block {b} is not published by its home block {home} at \
+                             sub-step {}; the bodies moved more than the halo allows: raise particles.subcycles",
+                            body.id,
+                            (g - 1) / self.rounds as u64 + 1
+                        ),
+                    );
+                    jw.solve = None;
+                    return;
+                };
                 jw.sources.push((home, index as u32));
                 if i >= w.locals {
                     jw.counts[i] = list.counts[index];

@@ -74,7 +74,7 @@ impl Particles {
         let round = ((g - 1) % self.rounds as u64) as usize;
         let jacobi = self.solver == ContactSolver::Jacobi;
         if jacobi && round > 0 {
-            self.jacobi_sweep(b, prev, round, w);
+            self.jacobi_sweep(b, g, prev, round, w);
             return;
         }
         w.bodies.clear();
