@@ -169,7 +169,10 @@ fn test_sized_study_writes_table_and_figures() {
 #[test]
 fn block_loads_share_grouped_rounds_without_loss() {
     use blockflow::physics::parts::Part;
-    let c = cfg("hopper-small.toml", &["processes.steps_per_graph=4"]);
+    let c = cfg(
+        "hopper-small.toml",
+        &["processes.steps_per_graph=4", "particles.solver=\"jacobi\""],
+    );
     let mut tl = timeloop_of(&c);
     tl.advance(40).expect("stable");
     let run = tl.pipeline().last_run().expect("a graph ran");

@@ -71,7 +71,7 @@ impl Candidate {
             return;
         };
         let t0 = blockflow_scheduler::executor::thread_cpu_ns();
-        let state = state_for(bal, cx.sim);
+        let state = state_for(bal, cx);
         let dist = bal.rebalance(&state, block_load, self.log.owners());
         let partition = (blockflow_scheduler::executor::thread_cpu_ns() - t0) as f64 * 1e-9;
         let predicted = predicted_imbalance(bal.last_weights(), &dist.owners, p);
@@ -164,9 +164,10 @@ impl<T: Real> Observer<T> for Counterfactual {
 }
 
 /// The blocks' state a balancer's weights are computed from (empty when they need none).
-fn state_for<T: Real>(bal: &Balancer, sim: &crate::physics::simulation::Simulation<T>) -> BlockState {
+fn state_for<T: Real>(bal: &Balancer, cx: &RunContext<'_, T>) -> BlockState {
     if bal.needs_state() {
-        BlockState::of(sim)
+        // The state the live balancer saw, before its migration, where it balanced this interval.
+        cx.balance_state.cloned().unwrap_or_else(|| BlockState::of(cx.sim))
     } else {
         BlockState {
             quantities: Vec::new(),

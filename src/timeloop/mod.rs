@@ -66,6 +66,10 @@ pub struct TimeLoop<T: Real> {
     world: Arc<World>,
     /// Models the recorded graph runs while the next ones execute (one rank only).
     modeler: Option<Modeler>,
+    /// The blocks' state at the last balancing step, taken before its migration (what observers that
+    /// balance the same interval another way weigh the blocks by; a migrated block's mapping averages
+    /// start again after the move).
+    balance_state: Option<BlockState>,
 }
 
 impl<T: Real> TimeLoop<T> {
@@ -132,6 +136,7 @@ impl<T: Real> TimeLoop<T> {
             parts_before: ByPart::default(),
             modeler: world.is_single().then(Modeler::new),
             world,
+            balance_state: None,
         })
     }
 
@@ -330,9 +335,12 @@ impl<T: Real> TimeLoop<T> {
             return Ok(());
         }
         self.block_load.iter_mut().for_each(|x| *x = 0.0);
+        self.balance_state = None;
         if balance && self.balancer.is_some() {
             let t0 = Instant::now();
-            let state = if self.balancer.as_ref().is_some_and(|b| b.needs_state()) {
+            // One rank: the state is kept for the observers too. Under ranks it is a collective, taken
+            // only where the live weights need it (the same on every rank).
+            let state = if self.balancer.as_ref().is_some_and(|b| b.needs_state()) || self.world.is_single() {
                 self.block_state()?
             } else {
                 BlockState {
@@ -354,6 +362,7 @@ impl<T: Real> TimeLoop<T> {
                 iv.migrated_bytes = bytes;
                 iv.balance_seconds = secs;
             }
+            self.balance_state = Some(state);
         }
         let iv = self.log.intervals().last().expect("closed above").clone();
         self.notify(|o, cx| o.interval_closed(cx, &iv, balance), balance)
@@ -420,6 +429,7 @@ impl<T: Real> TimeLoop<T> {
             balancer: self.balancer.as_ref(),
             run: if with_run { self.pipe.last_run() } else { None },
             intervals: self.log.intervals(),
+            balance_state: self.balance_state.as_ref(),
         };
         let r = observers.iter_mut().try_for_each(|o| f(o.as_mut(), &cx));
         self.observers = observers;

@@ -2,6 +2,7 @@
 //! taskflow's `ObserverInterface`). Outputs, checkpoints, progress, calibration samples and the study's
 //! counterfactual replay are observers; none of them can change a number of the simulation.
 
+use crate::balance::weights::BlockState;
 use crate::balance::Balancer;
 use crate::error::{Error, Result};
 use crate::metrics::interval::IntervalStats;
@@ -27,6 +28,10 @@ pub struct RunContext<'a, T: Real> {
     pub run: Option<RunRecord<'a>>,
     /// The finished intervals of the live assignment.
     pub intervals: &'a [IntervalStats],
+    /// In [`Observer::interval_closed`] after a balancing step: the blocks' state the live balancer
+    /// weighed them by, taken before its migration (a migrated block's mapping averages start again
+    /// after the move, so the state after it is not the one the decision saw).
+    pub balance_state: Option<&'a BlockState>,
 }
 
 /// Whether the time loop goes on after an observer was called.

@@ -12,7 +12,7 @@
 //! - *Contact ownership*: a sphere pair belongs to the home block of its lower-id body, a sphere–plane
 //!   contact to the home block of the sphere: each contact is owned by exactly one block, which resolves
 //!   it in the kernels' fixed (body id) order.
-//! - *Owner computes, with context* (`particles.solver = "block_gauss_seidel"`): a block runs projected Gauss–Seidel over every contact among its
+//! - *Owner computes, with context* (`particles.solver = "block_gauss_seidel"`, the default): a block runs projected Gauss–Seidel over every contact among its
 //!   locals and shadows (the non-owned ones give its owned contacts the load of the neighbourhood), then
 //!   keeps only the impulses of the contacts it owns and turns them into velocity changes of the bodies
 //!   they touch. Every body's new velocity is its velocity after forces plus the changes from every block
@@ -22,7 +22,7 @@
 //!   sub-steps with fewer sweeps each (`particles.subcycles`, `particles.iterations`), or more rounds of
 //!   the solve inside each sub-step (`particles.rounds`: the velocity changes are exchanged between
 //!   rounds and the solve continues from the impulses so far), tighten it.
-//! - *Or a global iteration* (`particles.solver = "jacobi"`, the default, [`jacobi`]): projected Jacobi with mass
+//! - *Or a global iteration* (`particles.solver = "jacobi"`, [`jacobi`]): projected Jacobi with mass
 //!   splitting, one round per sweep. Every block updates its locals from all their contacts, computed
 //!   from the velocities every owner published after the last sweep, and sums them in contact (body id)
 //!   order: a body's new velocity is the same whichever block holds it and whatever the layout.
