@@ -176,22 +176,9 @@ impl<'a> RunRecord<'a> {
 }
 
 impl<T: Real> Pipeline<T> {
-    /// Adds one graph run's task times to the totals and keeps them as the last run.
+    /// Adds one graph run's task times to the totals and keeps them as the last run; a grouped round's
+    /// time goes to its members by their times `member_ns` (per step in the run and block).
     pub(super) fn account(
-        &mut self,
-        compiled: &Compiled,
-        records: &[TaskRecord],
-        wall: f64,
-        sim: &Simulation<T>,
-        k: usize,
-    ) {
-        let member_ns = std::mem::take(&mut self.member_ns);
-        self.account_shared(compiled, records, wall, sim, k, &member_ns);
-        self.member_ns = member_ns;
-    }
-
-    /// [`Pipeline::account`] with the grouped rounds' member times `member_ns`.
-    fn account_shared(
         &mut self,
         compiled: &Compiled,
         records: &[TaskRecord],

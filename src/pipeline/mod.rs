@@ -673,7 +673,9 @@ impl<T: Real> Pipeline<T> {
             return Err(e);
         }
         let wall = t0.elapsed().as_secs_f64();
-        self.account(&compiled, &run.records, wall, sim, k);
+        let member_ns = std::mem::take(&mut self.member_ns);
+        self.account(&compiled, &run.records, wall, sim, k, &member_ns);
+        self.member_ns = member_ns;
         if let Some(tr) = self.trace.as_mut() {
             tr.bases.lock().expect("trace bases").push(base);
             tr.writer.add_run(&compiled.graph, &run.records, tr.offset_ns);
