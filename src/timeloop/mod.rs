@@ -335,7 +335,6 @@ impl<T: Real> TimeLoop<T> {
             return Ok(());
         }
         self.block_load.iter_mut().for_each(|x| *x = 0.0);
-        self.balance_state = None;
         if balance && self.balancer.is_some() {
             let t0 = Instant::now();
             // One rank: the state is kept for the observers too. Under ranks it is a collective, taken
@@ -365,7 +364,10 @@ impl<T: Real> TimeLoop<T> {
             self.balance_state = Some(state);
         }
         let iv = self.log.intervals().last().expect("closed above").clone();
-        self.notify(|o, cx| o.interval_closed(cx, &iv, balance), balance)
+        let r = self.notify(|o, cx| o.interval_closed(cx, &iv, balance), balance);
+        // Only `interval_closed` of this interval sees it.
+        self.balance_state = None;
+        r
     }
 
     /// Under ranks: every rank's loads of its own blocks over the interval under way, in block-id order,

@@ -12,11 +12,12 @@
 //! - *Contact ownership*: a sphere pair belongs to the home block of its lower-id body, a sphere–plane
 //!   contact to the home block of the sphere: each contact is owned by exactly one block, which resolves
 //!   it in the kernels' fixed (body id) order.
-//! - *Owner computes, with context* (`particles.solver = "block_gauss_seidel"`, the default): a block runs projected Gauss–Seidel over every contact among its
-//!   locals and shadows (the non-owned ones give its owned contacts the load of the neighbourhood), then
-//!   keeps only the impulses of the contacts it owns and turns them into velocity changes of the bodies
-//!   they touch. Every body's new velocity is its velocity after forces plus the changes from every block
-//!   in ascending block-id order (overlapping block-Jacobi between blocks, Gauss–Seidel inside a block).
+//! - *Owner computes, with context* (`particles.solver = "block_gauss_seidel"`, the default): a block
+//!   runs projected Gauss–Seidel over every contact among its locals and shadows (the non-owned ones
+//!   give its owned contacts the load of the neighbourhood), then keeps only the impulses of the
+//!   contacts it owns and turns them into velocity changes of the bodies they touch. Every body's new
+//!   velocity is its velocity after forces plus the changes from every block in ascending block-id
+//!   order (overlapping block-Jacobi between blocks, Gauss–Seidel inside a block).
 //!   Each contact's impulse acts on both of its bodies exactly once, so linear and angular momentum are
 //!   conserved to rounding whatever the block layout. Cross-block coupling lags by one sub-step: more
 //!   sub-steps with fewer sweeps each (`particles.subcycles`, `particles.iterations`), or more rounds of
