@@ -209,7 +209,8 @@ pub struct Summary {
     /// Under ranks: bytes of those messages from each rank (row) to each rank (column).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rank_pair_bytes: Option<Vec<Vec<u64>>>,
-    /// Tasks executed over the run, per kind (`send`, `comm`, `boundary`, `sweep`, `map`, ...).
+    /// Block stages executed over the run, per kind (`send`, `comm`, `boundary`, `sweep`, `map`, ...): a
+    /// task that runs the rigid-body phase of a group of blocks counts once per member.
     pub tasks_by_kind: BTreeMap<String, u64>,
     /// With `run.no_skip`: the work done only because the skip rules were off, per rule (`outside`,
     /// `no_boundary`, `no_particles`, `static_map`: tasks; `fused_kernel`: sweeps on the general path).

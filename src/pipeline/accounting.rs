@@ -217,7 +217,9 @@ impl<T: Real> Pipeline<T> {
             // grouped rounds (equally where none was measured).
             let one = [spec.block as usize];
             let blocks = match payload.kind {
-                TaskKind::Rb => compiled.groups.members(one[0], payload.sub % rounds).unwrap_or(&one),
+                TaskKind::Rb | TaskKind::RbSync => {
+                    compiled.groups.members(one[0], payload.sub % rounds).unwrap_or(&one)
+                }
                 _ => &one,
             };
             let ns = |b: usize| {

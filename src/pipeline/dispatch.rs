@@ -1,7 +1,7 @@
 //! What each task of the step graph does: the per-block stage of [`crate::physics`] its kind names, on
 //! the field of its step's parity.
 
-use super::graph::SweepGroups;
+use super::graph::RbGroups;
 use super::kinds::{Payload, TaskKind};
 use super::messages::MessagePlan;
 use super::ranked::RankGhosts;
@@ -27,8 +27,8 @@ pub(super) struct Dispatch<'a, T: Real> {
     /// Under ranks: the ghost regions between ranks (packed into messages by `ranked::post`, unpacked
     /// from their buffers by `comm`).
     pub(super) ghosts: Option<&'a RankGhosts>,
-    /// The blocks each `rb` task of a Jacobi sweep round runs.
-    pub(super) groups: &'a SweepGroups,
+    /// The blocks each grouped rigid-body task runs.
+    pub(super) groups: &'a RbGroups,
     /// Monotonic nanoseconds of each member of a grouped round, per (step in the run, block).
     pub(super) member_ns: &'a [AtomicU64],
 }
@@ -55,26 +55,26 @@ impl<T: Real> Dispatch<'_, T> {
                     .as_ref()
                     .expect("rigid-body tasks only exist with particles");
                 let g = step * parts.phases() + payload.sub as u64 + 1;
-                if payload.kind == TaskKind::Rb {
-                    match self.groups.members(b.id, payload.sub % parts.rounds) {
-                        // A group's members in id order; each reads only the round before. Each member's
-                        // time on the monotonic clock (tens of nanoseconds a read, where the task's CPU
-                        // clock costs a microsecond) shares the group's CPU time among the members.
-                        Some(members) if members.len() > 1 => {
-                            let nb = sim.blocks.len();
-                            let mut t = Instant::now();
-                            for &m in members {
-                                parts.rb(m, g);
-                                let now = Instant::now();
-                                let ns = now.duration_since(t).as_nanos() as u64;
-                                self.member_ns[payload.step * nb + m].fetch_add(ns, Ordering::Relaxed);
-                                t = now;
-                            }
+                let one = |m: usize| match payload.kind {
+                    TaskKind::Rb => parts.rb(m, g),
+                    _ => parts.rb_sync(m, g),
+                };
+                match self.groups.members(b.id, payload.sub % parts.rounds) {
+                    // A group's members in id order; each reads only the phase before. Each member's
+                    // time on the monotonic clock (tens of nanoseconds a read, where the task's CPU
+                    // clock costs a microsecond) shares the group's CPU time among the members.
+                    Some(members) if members.len() > 1 => {
+                        let nb = sim.blocks.len();
+                        let mut t = Instant::now();
+                        for &m in members {
+                            one(m);
+                            let now = Instant::now();
+                            let ns = now.duration_since(t).as_nanos() as u64;
+                            self.member_ns[payload.step * nb + m].fetch_add(ns, Ordering::Relaxed);
+                            t = now;
                         }
-                        _ => parts.rb(b.id, g),
                     }
-                } else {
-                    parts.rb_sync(b.id, g)
+                    _ => one(b.id),
                 }
             }
             TaskKind::Map => {

@@ -46,6 +46,9 @@
 //! - remote sender n: `send(n,s) → comm(b,s)`, `comm(b,s) → send(n,s+1)` (slot reuse);
 //! - `send(n,s) → compute(n,s)` (n's boundary writes wall cells in the layers being packed).
 //!
+//! The rigid-body phases of blocks with few contacts run one task per group of blocks (`graph`'s
+//! `RbGroups`): a task per block and phase would cost more to schedule than the block's work.
+//!
 //! Every block's numbers depend only on its data, never on which thread runs it; the sweep statistics
 //! are reduced in block order after the run, so results are bitwise identical for any P, T, pinning,
 //! stealing and assignment.
@@ -85,7 +88,7 @@ use blockflow_scheduler::executor::Executor;
 use blockflow_scheduler::trace::{TracePart, TraceWriter};
 use blockflow_scheduler::{GraphBuilder, TaskGraph};
 use dispatch::Dispatch;
-use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks, Grouping, SweepGroups};
+use graph::{add_fluid_tasks, add_particle_tasks, add_static_map_tasks, rb_groups, rb_load, Grouping, RbGroups};
 use kinds::Payload;
 use messages::MessagePlan;
 use ranked::{Driver, Outbox, RankGhosts, RankGraph};
@@ -133,7 +136,7 @@ struct Compiled {
     graph: Arc<TaskGraph>,
     messages: Option<RankGraph>,
     /// The blocks each `rb` task of a Jacobi sweep round runs (none under ranks or `run.no_skip`).
-    groups: SweepGroups,
+    groups: RbGroups,
 }
 
 /// What a rank's pipeline keeps besides the shared-memory one: the ghost regions between ranks, the
@@ -192,13 +195,9 @@ fn compile<T: Real>(
         })
         .collect();
     let fluid = add_fluid_tasks(&mut g, &sim.blocks, owners, outgoing, k, &force_boundary, no_skip);
-    let mut groups = SweepGroups::default();
+    let mut groups = RbGroups::default();
     if let (Some(parts), true) = (&sim.particles, moving) {
-        let grouping = match me {
-            _ if no_skip => Grouping::Off,
-            None => Grouping::Processes,
-            Some(me) => Grouping::Rank(me),
-        };
+        let grouping = grouping(no_skip, me);
         groups = add_particle_tasks(
             &mut g,
             parts,
@@ -230,8 +229,18 @@ fn compile<T: Real>(
             }
         }
     };
-    let counts = count_tasks(sim, &compiled.graph, &force_boundary, no_skip);
+    let counts = count_tasks(sim, &compiled.graph, &compiled.groups, &force_boundary, no_skip);
     (compiled, counts)
+}
+
+/// How the rigid-body phases are grouped: not with `run.no_skip` (each task counts under its own
+/// block's skip rule), else per process, or under ranks among rank `me`'s inner blocks.
+fn grouping(no_skip: bool, me: Option<u32>) -> Grouping {
+    match me {
+        _ if no_skip => Grouping::Off,
+        None => Grouping::Processes,
+        Some(me) => Grouping::Rank(me),
+    }
 }
 
 /// Compiles the step graph of `k` steps for the assignment `owners` of `sim`'s blocks as a pipeline of
@@ -254,7 +263,7 @@ pub struct Pipeline<T: Real> {
     plan: MessagePlan<T>,
     sizes: Arc<MessageSizes>,
     stats: Vec<Mutex<SweepStats>>,
-    /// Monotonic nanoseconds each member of a grouped Jacobi sweep round spent, summed per (step in the
+    /// Monotonic nanoseconds each member of a grouped rigid-body phase spent, summed per (step in the
     /// run, block): how a group's CPU time is shared among its members.
     member_ns: Vec<AtomicU64>,
     totals: Totals,
@@ -451,7 +460,7 @@ impl<T: Real> Pipeline<T> {
         }
         if let Some(parts) = sim.particles.as_mut() {
             let bodies = parts.bodies(sim.step);
-            if parts.update_active(k as u64, &bodies) {
+            if parts.update_active(k as u64, &bodies) || self.groups_outdated(sim) {
                 self.graphs.clear();
                 self.counts.clear();
             }
@@ -471,6 +480,24 @@ impl<T: Real> Pipeline<T> {
         Ok(())
     }
 
+    /// Whether a compiled graph's rigid-body groups no longer fit the blocks' loads
+    /// ([`RbGroups::outdated`]); under ranks this rank's view (its own inner blocks).
+    fn groups_outdated(&self, sim: &Simulation<T>) -> bool {
+        let Some(parts) = sim.particles.as_ref() else {
+            return false;
+        };
+        let me = self.ranks.as_ref().map(|_| self.world.rank() as u32);
+        let grouping = grouping(self.settings.no_skip, me);
+        if self.graphs.is_empty() || grouping == Grouping::Off || !parts.has_moving() {
+            return false;
+        }
+        let active: Vec<usize> = (0..sim.blocks.len()).filter(|&b| parts.active[b]).collect();
+        let fresh = rb_groups(parts, &self.owners, &active, grouping);
+        self.graphs
+            .values()
+            .any(|c| c.groups.outdated(&fresh, |b| rb_load(parts, b)))
+    }
+
     /// Under ranks: the blocks with rigid-body tasks for the next `k` steps (the union of every rank's
     /// bodies' reach) and the shape flags of every block, agreed on by all ranks (a collective); the
     /// compiled graphs are dropped when either changed. Nothing under virtual processes.
@@ -480,7 +507,9 @@ impl<T: Real> Pipeline<T> {
         }
         let nb = sim.blocks.len();
         let words = nb.div_ceil(64);
-        let mut bits = vec![0u64; 3 * words];
+        // Three block sets (active, overlay, links) and one word: whether this rank's groups are outdated.
+        let mut bits = vec![0u64; 3 * words + 1];
+        bits[3 * words] = self.groups_outdated(sim) as u64;
         let set = |bits: &mut [u64], at: usize, b: usize| bits[at * words + b / 64] |= 1 << (b % 64);
         let mine = ShapeFlags::of(sim);
         for b in 0..nb {
@@ -505,7 +534,7 @@ impl<T: Real> Pipeline<T> {
             links: (0..nb).map(|b| get(2, b)).collect(),
         };
         let state = self.ranks.as_mut().expect("ranked");
-        let mut changed = state.flags.as_ref() != Some(&flags);
+        let mut changed = state.flags.as_ref() != Some(&flags) || bits[3 * words] != 0;
         state.flags = Some(flags);
         if let Some(parts) = sim.particles.as_mut() {
             changed |= parts.set_active((0..nb).map(|b| get(0, b)).collect());

@@ -1,6 +1,7 @@
 //! The bookkeeping of the skip rules (DESIGN.md principle 2): which tasks a graph holds per kind and,
 //! under `run.no_skip`, which rule each extra task is owed to.
 
+use super::graph::RbGroups;
 use super::kinds::{ByKind, Payload, TaskKind};
 use crate::config::KernelChoice;
 use crate::physics::simulation::Simulation;
@@ -52,17 +53,21 @@ pub type ByRule<V> = [V; 5];
 /// Task counts of one compiled graph.
 #[derive(Clone, Debug, Default)]
 pub(super) struct GraphCounts {
+    /// Block stages per kind: a task that runs the rigid-body phase of a group of blocks counts once per
+    /// member, so the counts do not depend on the grouping.
     pub(super) by_kind: ByKind<u64>,
     pub(super) by_rule: ByRule<u64>,
     /// The rule each task is owed to (`None`: it runs with the rules on).
     pub(super) rule_of: Vec<Option<SkipRule>>,
 }
 
-/// Counts the tasks of a compiled graph per kind and, with `no_skip`, the work per skip rule that is
-/// done only because the rule is off (classified from the same block state the graph was built from).
+/// Counts the block stages of a compiled graph per kind (the members of `groups` each once) and, with
+/// `no_skip`, the work per skip rule that is done only because the rule is off (classified from the
+/// same block state the graph was built from; `run.no_skip` groups nothing).
 pub(super) fn count_tasks<T: Real>(
     sim: &Simulation<T>,
     graph: &TaskGraph,
+    groups: &RbGroups,
     force_boundary: &[bool],
     no_skip: bool,
 ) -> GraphCounts {
@@ -72,8 +77,15 @@ pub(super) fn count_tasks<T: Real>(
     };
     let active = |b: usize| sim.particles.as_ref().is_some_and(|p| p.active[b]);
     for (i, spec) in graph.specs().iter().enumerate() {
-        let kind = Payload::of(spec).kind;
-        c.by_kind[kind.index()] += 1;
+        let payload = Payload::of(spec);
+        let kind = payload.kind;
+        let rounds = sim.particles.as_ref().map_or(1, |p| p.rounds);
+        c.by_kind[kind.index()] += match kind {
+            TaskKind::Rb | TaskKind::RbSync => groups
+                .members(spec.block as usize, payload.sub % rounds)
+                .map_or(1, |m| m.len() as u64),
+            _ => 1,
+        };
         if !no_skip {
             continue;
         }

@@ -23,8 +23,11 @@
 //! Under `particles.solver = "jacobi"` the phases are the rounds of [`super::jacobi`]: a set-up round
 //! and one round per sweep. Each has no `rb_sync`: `rb(b, g)` publishes at its end, since b's locals
 //! take no velocity change from a neighbour ([`Particles::has_sync_tasks`] gives its edges). A sweep
-//! round of b reads only the lists of the round before and writes only b's, so the step graph may run
-//! the sweep rounds of several blocks one after the other in one task.
+//! round of b reads only the lists of the round before and writes only b's.
+//!
+//! Under either solver the step graph may run a phase's `rb` (or `rb_sync`) of several blocks one after
+//! the other in one task, each with the edges of every member: the tasks of one phase read only what
+//! the phase before wrote and write only their own block's data.
 //!
 //! Edges (symmetric neighbourhoods make these enough): `rb_sync(n, g-1) → rb(b, g)` and
 //! `rb(n, g) → rb_sync(b, g)` for every neighbour n of b (b included). Write-after-read follows by
