@@ -107,7 +107,8 @@ pub struct BalanceSummary {
     pub remote_messages: u64,
     /// Ghost regions copied directly inside a process.
     pub local_copies: u64,
-    /// Tasks per step (one-step graph).
+    /// Tasks per step of the one-step graph compiled at the start of the run (its rigid-body groups cut
+    /// from the loads of the state it starts from: none yet in a fresh run, so one group per process).
     pub tasks_per_step: usize,
 }
 
