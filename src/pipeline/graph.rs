@@ -9,7 +9,7 @@ use crate::physics::particles::Particles;
 use blockflow_kernels::Real;
 use blockflow_scheduler::{GraphBuilder, TaskId};
 
-/// Which blocks' Jacobi sweep rounds may share an `rb` task ([`RbGroups`]).
+/// Which blocks' rigid-body phases may share a task ([`RbGroups`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Grouping {
     /// One task per block and round: `run.no_skip` counts every task under its own block's skip rule.
@@ -26,9 +26,10 @@ pub(super) enum Grouping {
 /// `map` and `reconstruct` before the block's fluid tasks and `forces` after the boundary passes around
 /// it; then `rb(b, s)` and `rb_sync(b, s)` for the S sub-steps (only `rb` under Jacobi). Edges as
 /// documented in [`crate::physics::particles::tasks`] and [`crate::physics::coupling::tasks`]. With `no_skip` every block counts as
-/// active and gets `map`/`reconstruct` even without fluid. Under Jacobi with `grouping` other than
-/// [`Grouping::Off`], the sweep rounds run one task per [`RbGroups`] group (returned; empty
-/// otherwise), after every task of the round before that covers a neighbour of a member.
+/// active and gets `map`/`reconstruct` even without fluid. With `grouping` other than [`Grouping::Off`],
+/// the grouped phases (every phase under block Gauss–Seidel, the sweep rounds under Jacobi) run one task
+/// per [`RbGroups`] group and kind (returned; empty otherwise), after every task of the phase before that
+/// covers a neighbour of a member.
 #[allow(clippy::too_many_arguments)] // the graph under construction and the state it is built from
 pub(super) fn add_particle_tasks<T: Real>(
     g: &mut GraphBuilder,
@@ -98,11 +99,18 @@ pub(super) fn rb_groups(parts: &Particles, owners: &[u32], active: &[usize], gro
         Grouping::Rank(me) => owners[b] != me || parts.blocks[b].near.iter().any(|&n| owners[n] != me),
         _ => false,
     };
-    let rounds = match parts.has_sync_tasks() {
+    let (first_round, limit) = match parts.has_sync_tasks() {
         true => (0, GROUP_LOAD_GS),
         false => (1, GROUP_LOAD_JACOBI),
     };
-    RbGroups::new(parts.blocks.len(), owners, active, |b| rb_load(parts, b), alone, rounds)
+    RbGroups::new(
+        parts.blocks.len(),
+        owners,
+        active,
+        |b| rb_load(parts, b),
+        alone,
+        (first_round, limit),
+    )
 }
 
 /// The work of block `b`'s grouped rigid-body phase in contacts: under Jacobi (its sweep rounds) the
@@ -193,8 +201,7 @@ fn add_coupling_tasks<T: Real>(
 /// Adds phase `sub` of step `kk` as one `rb` task per group of `groups`, after every task of the phase
 /// before (`before`: its `rb_sync`, its `rb` under Jacobi, or at a step's first phase the `forces`)
 /// that covers a neighbour of a member, and under block Gauss–Seidel one `rb_sync` task per group after
-/// every new `rb` task that covers a neighbour of a member (the graph's build drops the repeated edges);
-/// returns each member's last task of the phase.
+/// every new `rb` task that covers a neighbour of a member; returns each member's last task of the phase.
 fn add_grouped_phase(
     g: &mut GraphBuilder,
     parts: &Particles,
@@ -204,35 +211,25 @@ fn add_grouped_phase(
     sub: usize,
     before: &[Option<TaskId>],
 ) -> Vec<Option<TaskId>> {
-    let nb = parts.blocks.len();
-    let mut new_rb: Vec<Option<TaskId>> = vec![None; nb];
-    for (first, members) in groups.iter() {
-        let t = g.add(spec(owners[first], first, Payload::sub_step(TaskKind::Rb, kk, sub)));
-        for &m in members {
-            new_rb[m] = Some(t);
-            for &n in &parts.blocks[m].near {
-                if let Some(prev) = before[n] {
+    let mut add = |kind: TaskKind, before: &[Option<TaskId>]| {
+        let mut new: Vec<Option<TaskId>> = vec![None; parts.blocks.len()];
+        for (first, members) in groups.iter() {
+            let t = g.add(spec(owners[first], first, Payload::sub_step(kind, kk, sub)));
+            for &m in members {
+                new[m] = Some(t);
+                // The graph's build drops the repeated edges.
+                for prev in parts.blocks[m].near.iter().filter_map(|&n| before[n]) {
                     g.edge(prev, t);
                 }
             }
         }
-    }
+        new
+    };
+    let new_rb = add(TaskKind::Rb, before);
     if !parts.has_sync_tasks() {
         return new_rb;
     }
-    let mut new_sync: Vec<Option<TaskId>> = vec![None; nb];
-    for (first, members) in groups.iter() {
-        let t = g.add(spec(owners[first], first, Payload::sub_step(TaskKind::RbSync, kk, sub)));
-        for &m in members {
-            new_sync[m] = Some(t);
-            for &n in &parts.blocks[m].near {
-                if let Some(r) = new_rb[n] {
-                    g.edge(r, t);
-                }
-            }
-        }
-    }
-    new_sync
+    add(TaskKind::RbSync, &new_rb)
 }
 
 /// [`rb_load`] per task of a grouped Jacobi sweep round at most, unless one block has more: a sweep
@@ -241,17 +238,17 @@ const GROUP_LOAD_JACOBI: usize = 32;
 
 /// [`rb_load`] per task of a grouped block Gauss–Seidel phase at most, unless one block has more: the
 /// load counts the bodies a phase gathers besides the contacts it solves. Measured with `blockflow bench
-/// coupled` (2 threads): 96 runs hopper-small 5–7 % faster than 32 and no slower on the calibration
+/// coupled` (2 threads): 96 runs hopper-small 3–7 % faster than 32 and no slower on the calibration
 /// scene, whose blocks each see more than 96 bodies and contacts and keep a task each; 256 gains nothing
 /// more on hopper-small and costs the calibration scene 1–3 %.
 const GROUP_LOAD_GS: usize = 96;
 
 /// The blocks whose rigid-body phases one task runs: every process's active blocks in id order, cut
 /// into runs whose blocks' [`rb_load`] adds up to at most a limit ([`GROUP_LOAD_JACOBI`],
-/// [`GROUP_LOAD_GS`]; a block with more is a run of its own). Most blocks have few contacts or none, and their
-/// phase only gathers, integrates and publishes a few bodies, so one task per block and phase (2·S per
-/// block and step under block Gauss–Seidel, S × (I + 1) under Jacobi, each with an edge from every
-/// neighbour) costs more in scheduling than in work; blocks with many contacts keep a task each, so
+/// [`GROUP_LOAD_GS`]; a block with more is a run of its own). Most blocks have few contacts or none,
+/// and their phase only gathers, integrates and publishes a few bodies, so one task per block and
+/// phase (2·S per block and step under block Gauss–Seidel, S × (I + 1) under Jacobi, each with an edge
+/// from every neighbour) costs more in scheduling than in work; blocks with many contacts keep a task each, so
 /// their solves run in parallel. Under block Gauss–Seidel every phase runs grouped, an `rb` task and an
 /// `rb_sync` task per group; under Jacobi the sweep rounds (1 … I), while the set-up round (gather,
 /// detection) stays one task per block. A block's `rb` reads only the lists of the phase before and
@@ -320,8 +317,8 @@ impl RbGroups {
 
     /// Whether a graph built on these groups should be rebuilt on `fresh` ones (the same blocks' groups
     /// from the current loads `load`): a group of several blocks now carries more than twice the limit
-    /// (its members would run in parallel), or the fresh grouping needs fewer than
-    /// half the tasks. The margins keep a graph from being rebuilt for every small change of the loads.
+    /// (its members would run in parallel), or the fresh grouping needs fewer than half the tasks. The
+    /// margins keep a graph from being rebuilt for every small change of the loads.
     pub(super) fn outdated(&self, fresh: &RbGroups, load: impl Fn(usize) -> usize) -> bool {
         let crowded = self
             .groups
