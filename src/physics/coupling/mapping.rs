@@ -8,7 +8,7 @@
 //! bits of the neighbouring row shifted by c_q. The result is the same overlay, cell for cell and in the
 //! same order, as a cell-by-cell scan.
 
-use super::cell_offset;
+use super::cell_offset_along;
 use super::rows::{bit_cells, interior_mask, CellBits};
 use crate::physics::block::Block;
 use crate::physics::domain::DomainSpec;
@@ -26,9 +26,9 @@ pub fn map<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies
 }
 
 /// [`map`] with its shortcuts switched on or off: the fast path for a block with no body near (before
-/// or now), and taking the rows whose neighbourhood no body entered or left from the previous mapping.
-/// With `shortcuts = false` (`run.no_skip`) every row of every block is derived again, which gives the
-/// same overlay.
+/// or now), and taking the rows whose neighbourhood no body entered or left from the previous mapping
+/// (all of its lists as they are when no covered cell changed). With `shortcuts = false`
+/// (`run.no_skip`) every row of every block is derived again, which gives the same overlay.
 pub fn map_with<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bodies: Vec<MapBody>, shortcuts: bool) {
     map_overlay(d, b, pc, bodies, shortcuts);
     let w = pc.map_work;
@@ -85,8 +85,9 @@ fn map_overlay<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bo
         occ = CellBits::new(full);
     }
     let mut box_cells = 0;
+    let mut scratch = FillScratch::default();
     for body in &bodies {
-        box_cells += fill_sphere(d, b, &pc.statics, body, &mut owner, &mut occ);
+        box_cells += fill_sphere(d, b, &pc.statics, body, &mut owner, &mut occ, &mut scratch);
     }
     pc.owner = owner;
     pc.owned = occ.any();
@@ -104,6 +105,18 @@ fn map_overlay<T: Real>(d: &DomainSpec, b: &Block<T>, pc: &mut ParticleCells, bo
     pc.occupied_spare = old_occ;
 }
 
+/// Per-axis offsets of a sphere's bounding-box cells from its centre, kept between the bodies of one
+/// mapping.
+#[derive(Default)]
+struct FillScratch {
+    /// x offsets of the box's cells.
+    ox: Vec<f64>,
+    /// Their squares.
+    ox2: Vec<f64>,
+    /// y offsets.
+    oy: Vec<f64>,
+}
+
 /// Writes `body` into the owners of every static fluid cell (`statics.fluid`) its sphere covers (any
 /// periodic image whose bounding box meets the block with its ghost layer); returns the number of
 /// bounding-box cells visited.
@@ -114,6 +127,7 @@ fn fill_sphere<T: Real>(
     body: &MapBody,
     owner: &mut [u64],
     occ: &mut CellBits,
+    scratch: &mut FillScratch,
 ) -> u64 {
     let l = b.layout;
     let cells = d.cells();
@@ -130,25 +144,25 @@ fn fill_sphere<T: Real>(
     }
     let r2 = body.radius * body.radius;
     // The offset is separable per axis: compute each axis once (same bits as cell_offset).
-    let axis = |a: usize, k: i64| {
-        let mut xyz = [1usize; 3];
-        xyz[a] = k as usize;
-        cell_offset(d, b.origin, xyz, body.position)[a]
-    };
+    let axis = |a: usize, k: i64| cell_offset_along(d, b.origin, a, k as usize, body.position[a]);
+    let FillScratch { ox, ox2, oy } = scratch;
     let id1 = body.id + 1;
     for rz in ranges[2].iter().filter(|r| r.0 <= r.1) {
         for ry in ranges[1].iter().filter(|r| r.0 <= r.1) {
             for rx in ranges[0].iter().filter(|r| r.0 <= r.1) {
                 visited += ((rx.1 - rx.0 + 1) * (ry.1 - ry.0 + 1) * (rz.1 - rz.0 + 1)) as u64;
-                let ox: Vec<f64> = (rx.0..=rx.1).map(|k| axis(0, k)).collect();
-                let ox2: Vec<f64> = ox.iter().map(|o| o * o).collect();
+                ox.clear();
+                ox.extend((rx.0..=rx.1).map(|k| axis(0, k)));
+                ox2.clear();
+                ox2.extend(ox.iter().map(|o| o * o));
                 // Along one image's range the offset grows with x, so the cells of a row inside the
                 // sphere (ox² + oy² + oz² ≤ R²) are one run around the smallest |ox|: found from there
                 // with the same test at its two ends. (A sphere wider than half the domain could wrap
                 // within the range: then every cell is tested.)
                 let monotone = ox.windows(2).all(|w| w[0] < w[1]);
                 let centre = (0..ox2.len()).fold(0, |m, j| if ox2[j] < ox2[m] { j } else { m });
-                let oy: Vec<f64> = (ry.0..=ry.1).map(|k| axis(1, k)).collect();
+                oy.clear();
+                oy.extend((ry.0..=ry.1).map(|k| axis(1, k)));
                 for z in rz.0..=rz.1 {
                     let oz = axis(2, z);
                     for (jy, y) in (ry.0..=ry.1).enumerate() {
@@ -295,15 +309,27 @@ fn rows<T: Real>(
     let n_rows = (fy - 2) * (fz - 2);
     let mut derived = 0u64;
     let reusable = reuse && pc.row_index.valid && pc.row_index.counts.len() == n_rows;
-    // Rows (ghost layer included) whose covered cells changed since the previous mapping.
+    let words = occ.words;
+    // Interior rows whose neighbourhood (the row and its eight neighbour rows) has covered cells that
+    // changed since the previous mapping.
     let changed: Vec<bool> = match old_occ {
-        Some(prev) if reusable => (0..fz)
-            .flat_map(|z| (0..fy).map(move |y| (y, z)))
-            .map(|(y, z)| occ.row(y, z).iter().zip(prev.row(y, z)).any(|(a, b)| a != b))
-            .collect(),
+        Some(prev) if reusable => around_rows(
+            occ.bits
+                .chunks_exact(words)
+                .zip(prev.bits.chunks_exact(words))
+                .map(|(a, b)| a.iter().zip(b).any(|(a, b)| a != b)),
+            fy,
+            fz,
+        ),
         _ => Vec::new(),
     };
     let reusable = reusable && old_occ.is_some();
+    if reusable && !changed.contains(&true) {
+        // No covered cell changed anywhere: the previous lists, row index and counts stand as they are.
+        pc.turned.clear();
+        pc.covered.clear();
+        return 0;
+    }
     let prev_segments = std::mem::replace(&mut pc.segments, std::mem::take(&mut pc.spare.segments));
     let prev_links = std::mem::replace(&mut pc.link_cells, std::mem::take(&mut pc.spare.link_cells));
     let prev_index = std::mem::replace(&mut pc.row_index, std::mem::take(&mut pc.spare.index));
@@ -316,23 +342,17 @@ fn rows<T: Real>(
     pc.link_cells.clear();
     pc.turned.clear();
     pc.covered.clear();
-    let words = occ.words;
     let mut masks = vec![[0u64; Q]; words];
     // Per word and direction: the link cells whose second cell x − c_q is fluid now.
     let mut seconds = vec![[0u64; Q]; words];
-    // Rows with a covered cell: only rows next to one can have links.
-    let row_cov: Vec<bool> = (0..fz)
-        .flat_map(|z| (0..fy).map(move |y| (y, z)))
-        .map(|(y, z)| occ.row(y, z).iter().any(|&w| w != 0))
-        .collect();
-    let around =
-        |flags: &[bool], y: usize, z: usize| (z - 1..=z + 1).any(|zz| (y - 1..=y + 1).any(|yy| flags[yy + fy * zz]));
+    // Interior rows next to a row with a covered cell: only they can have links.
+    let near_cov = around_rows(occ.bits.chunks_exact(words).map(|r| r.iter().any(|&w| w != 0)), fy, fz);
     let mut row = 0;
     // The first of the current run of clean rows.
     let mut clean: Option<usize> = None;
     for z in 1..fz - 1 {
         for y in 1..fy - 1 {
-            if reusable && !around(&changed, y, z) {
+            if reusable && !changed[y + fy * z] {
                 // A clean row: its entries are copied with the run of clean rows it belongs to.
                 clean.get_or_insert(row);
                 row += 1;
@@ -354,7 +374,7 @@ fn rows<T: Real>(
             let mut counts = [0u32; 3];
             let base = l.idx(0, y, z);
             let covered_row = (0..words).any(|w| occ.row(y, z)[w] & interior_mask(fx, w) != 0);
-            let check_links = around(&row_cov, y, z);
+            let check_links = near_cov[y + fy * z];
             let mut linked = false;
             for (w, (mask, second)) in masks.iter_mut().zip(seconds.iter_mut()).enumerate() {
                 let im = interior_mask(fx, w);
@@ -427,6 +447,28 @@ fn rows<T: Real>(
     pc.spare.link_cells = prev_links;
     pc.spare.index = prev_index;
     derived
+}
+
+/// Per row (y, z) of a ghost-inclusive grid with `fy` × `fz` rows, from one flag per row in row order
+/// (`y + fy z`): for the interior rows, whether the flag is set on the row or any of its eight neighbour
+/// rows (y ± 1, z ± 1); false on the ghost rows.
+fn around_rows(flags: impl Iterator<Item = bool>, fy: usize, fz: usize) -> Vec<bool> {
+    let flags: Vec<bool> = flags.collect();
+    let mut along_y = vec![false; flags.len()];
+    for z in 0..fz {
+        for y in 1..fy - 1 {
+            let r = y + fy * z;
+            along_y[r] = flags[r - 1] | flags[r] | flags[r + 1];
+        }
+    }
+    let mut out = vec![false; flags.len()];
+    for z in 1..fz - 1 {
+        for y in 1..fy - 1 {
+            let r = y + fy * z;
+            out[r] = along_y[r - fy] | along_y[r] | along_y[r + fy];
+        }
+    }
+    out
 }
 
 /// The link masks of word `w` of row (y, z) whose cells fluid now are `now`: bit x of `mask[q]` is set when

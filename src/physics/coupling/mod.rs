@@ -50,20 +50,27 @@ pub(crate) fn min_image(d: f64, len: f64, periodic: bool) -> f64 {
 /// computed from the wrapped global cell index (the same bits in every block that holds the cell).
 #[inline]
 pub fn cell_offset(d: &DomainSpec, origin: [usize; 3], xyz: [usize; 3], centre: DVec3) -> DVec3 {
+    DVec3::new(
+        cell_offset_along(d, origin, 0, xyz[0], centre[0]),
+        cell_offset_along(d, origin, 1, xyz[1], centre[1]),
+        cell_offset_along(d, origin, 2, xyz[2], centre[2]),
+    )
+}
+
+/// Component `a` of [`cell_offset`] for the cell at full-layout coordinate `k` along axis `a` (the
+/// components are independent: the same bits as the full offset's).
+#[inline]
+pub fn cell_offset_along(d: &DomainSpec, origin: [usize; 3], a: usize, k: usize, centre: f64) -> f64 {
     let n = d.cells();
-    let mut out = DVec3::ZERO;
-    for a in 0..3 {
-        let g = origin[a] as i64 + xyz[a] as i64 - 1;
-        let len = n[a] as i64;
-        // Ghost cells lie at most one cell outside the domain: one period wraps them.
-        let gw = if !d.periodic[a] || (0..len).contains(&g) {
-            g
-        } else if g < 0 {
-            g + len
-        } else {
-            g - len
-        };
-        out[a] = min_image(gw as f64 + 0.5 - centre[a], n[a] as f64, d.periodic[a]);
-    }
-    out
+    let g = origin[a] as i64 + k as i64 - 1;
+    let len = n[a] as i64;
+    // Ghost cells lie at most one cell outside the domain: one period wraps them.
+    let gw = if !d.periodic[a] || (0..len).contains(&g) {
+        g
+    } else if g < 0 {
+        g + len
+    } else {
+        g - len
+    };
+    min_image(gw as f64 + 0.5 - centre, n[a] as f64, d.periodic[a])
 }
