@@ -5,8 +5,12 @@
 //! MLUPS per core (fluid cells × steps / CPU seconds of the sweeps), and every part's share of the thread
 //! time (P × T × wall seconds): LBM, boundary, exchange, map, reconstruct, rigid body, forces, and what no
 //! task used (scheduling and idle), next to the shares of the paper's figure 7. With `--baseline`, the
-//! coupled runs are repeated with another `blockflow` binary (its `run` command), side by side, in the
-//! same order on the same machine.
+//! coupled runs are repeated with another `blockflow` binary (its `run` command), side by side on the
+//! same machine. With `--rounds N` every run of a scene is repeated N times, the order of a scene's runs
+//! rotating from round to round (on this VM the first run of a scene is up to 9 % faster than the ones
+//! after it, whichever binary it is); each row is then the run with the median MLUPS, and the MLUPS of
+//! every round are listed beside it. Every run, this program's and the baseline's, is a `blockflow run`
+//! in a process of its own.
 
 use crate::app::run::{self, RunOptions};
 use crate::config;
@@ -133,6 +137,8 @@ pub struct Row {
     pub shares: Vec<f64>,
     /// Fluid and particle checksums.
     pub checksums: (String, String),
+    /// MLUPS of every round of this scene and run, in round order (the row is the median one's).
+    pub rounds_mlups: Vec<f64>,
 }
 
 impl Row {
@@ -172,6 +178,7 @@ impl Row {
                 s["checksum"]["fluid"].as_str().unwrap_or("").to_string(),
                 s["checksum"]["particles"].as_str().unwrap_or("-").to_string(),
             ),
+            rounds_mlups: vec![num("mlups")],
         })
     }
 
@@ -194,6 +201,13 @@ pub struct CoupledOptions {
     pub threads: usize,
     /// Another `blockflow` binary whose `run` repeats the coupled runs.
     pub baseline: Option<PathBuf>,
+    /// Times every run is repeated, in an order that rotates from round to round (at least 1).
+    pub rounds: usize,
+    /// This program, to run each of its own runs in a fresh process as the baseline's are (`None`: in
+    /// this process, as the unit test does). A run in a process that has already run others was up to
+    /// 6 % slower here (the calibration scene at b_s = 32, every round), which biased the comparison
+    /// with the baseline.
+    pub program: Option<PathBuf>,
     /// Output folder.
     pub out: PathBuf,
     /// Folder of the scene files.
@@ -211,6 +225,9 @@ fn sets_of(c: &Case, threads: usize, fluid_only: bool) -> Vec<String> {
 }
 
 fn own_run(o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result<serde_json::Value> {
+    if let Some(program) = &o.program {
+        return child_run(program, o, c, fluid_only, dir);
+    }
     let cfg = config::load(&o.configs.join(c.file), &sets_of(c, o.threads, fluid_only))?;
     let opts = RunOptions {
         out: Some(dir.to_path_buf()),
@@ -220,18 +237,19 @@ fn own_run(o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result
     serde_json::to_value(&s).map_err(|e| Error::Io(format!("summary of {}: {e}", c.name)))
 }
 
-fn baseline_run(bin: &Path, o: &CoupledOptions, c: &Case, dir: &Path) -> Result<serde_json::Value> {
+/// One run of `bin` (`blockflow run` with the case's overrides) in a process of its own; its summary.
+fn child_run(bin: &Path, o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result<serde_json::Value> {
     let mut cmd = std::process::Command::new(bin);
     cmd.arg("run").arg(o.configs.join(c.file)).arg("--out").arg(dir);
-    for s in sets_of(c, o.threads, false) {
+    for s in sets_of(c, o.threads, fluid_only) {
         cmd.arg("--set").arg(s);
     }
     let out = cmd
         .output()
-        .map_err(|e| Error::Config(format!("--baseline {}: cannot run it: {e}", bin.display())))?;
+        .map_err(|e| Error::Config(format!("bench coupled: cannot run {}: {e}", bin.display())))?;
     if !out.status.success() {
         return Err(Error::Config(format!(
-            "--baseline {}: run of {} failed: {}",
+            "bench coupled: {} failed on {}: {}",
             bin.display(),
             c.name,
             String::from_utf8_lossy(&out.stderr).trim()
@@ -247,22 +265,37 @@ pub fn run(o: &CoupledOptions) -> Result<Vec<Row>> {
     if o.threads == 0 {
         return Err(Error::Config("bench coupled: --threads must be at least 1".into()));
     }
+    if o.rounds == 0 {
+        return Err(Error::Config("bench coupled: --rounds must be at least 1".into()));
+    }
     let mut rows = Vec::new();
     for c in cases(o.quick) {
         let dir = o.out.join(c.name.replace([' ', ',', '='], "_"));
-        if c.particulate {
-            if let Some(bin) = &o.baseline {
-                let s = baseline_run(bin, o, &c, &dir.join("baseline"))?;
-                rows.push(Row::of(c.name, "baseline", &s)?);
+        let variants: Vec<&str> = match (c.particulate, &o.baseline) {
+            (false, _) => vec!["kernel"],
+            (true, Some(_)) => vec!["baseline", "coupled", "fluid-only"],
+            (true, None) => vec!["coupled", "fluid-only"],
+        };
+        let mut runs: Vec<Vec<Row>> = vec![Vec::new(); variants.len()];
+        for round in 0..o.rounds {
+            for k in 0..variants.len() {
+                let v = (k + round) % variants.len();
+                let mut at = if c.particulate {
+                    dir.join(variants[v])
+                } else {
+                    dir.clone()
+                };
+                if o.rounds > 1 {
+                    at = at.join(format!("round-{round}"));
+                }
+                let s = match (variants[v], &o.baseline) {
+                    ("baseline", Some(bin)) => child_run(bin, o, &c, false, &at)?,
+                    (variant, _) => own_run(o, &c, variant == "fluid-only", &at)?,
+                };
+                runs[v].push(Row::of(c.name, variants[v], &s)?);
             }
-            let s = own_run(o, &c, false, &dir.join("coupled"))?;
-            rows.push(Row::of(c.name, "coupled", &s)?);
-            let s = own_run(o, &c, true, &dir.join("fluid-only"))?;
-            rows.push(Row::of(c.name, "fluid-only", &s)?);
-        } else {
-            let s = own_run(o, &c, false, &dir)?;
-            rows.push(Row::of(c.name, "kernel", &s)?);
         }
+        rows.extend(runs.into_iter().map(median_run));
     }
     std::fs::create_dir_all(&o.out).map_err(|e| Error::Io(format!("{}: {e}", o.out.display())))?;
     for (name, text) in [("coupled.md", to_markdown(&rows)), ("coupled.csv", to_csv(&rows))] {
@@ -270,6 +303,17 @@ pub fn run(o: &CoupledOptions) -> Result<Vec<Row>> {
         std::fs::write(&p, text).map_err(|e| Error::Io(format!("{}: {e}", p.display())))?;
     }
     Ok(rows)
+}
+
+/// The run with the median MLUPS of one scene and variant's rounds (the lower of the middle two for an
+/// even count), with every round's MLUPS in round order.
+fn median_run(rounds: Vec<Row>) -> Row {
+    let all: Vec<f64> = rounds.iter().map(|r| r.mlups).collect();
+    let mut order: Vec<usize> = (0..rounds.len()).collect();
+    order.sort_by(|&a, &b| all[a].total_cmp(&all[b]));
+    let mut row = rounds[order[(order.len() - 1) / 2]].clone();
+    row.rounds_mlups = all;
+    row
 }
 
 /// The ratios of a scene: coupled over fluid-only MLUPS, coupled over the kernel on big blocks, and the
@@ -313,6 +357,13 @@ pub fn to_markdown(rows: &[Row]) -> String {
         }
         s.push('\n');
     }
+    if rows.iter().any(|r| r.rounds_mlups.len() > 1) {
+        s += "\nMLUPS of every round (the rows above are the median runs):\n\n| scene | run | MLUPS by round |\n|---|---|---|\n";
+        for r in rows {
+            let all: Vec<String> = r.rounds_mlups.iter().map(|m| format!("{m:.1}")).collect();
+            let _ = writeln!(s, "| {} | {} | {} |", r.scene, r.variant, all.join(" / "));
+        }
+    }
     s += "\n| scene | coupled / fluid-only | coupled / kernel on big blocks | coupled / baseline |\n|---|---:|---:|---:|\n";
     for (scene, (a, b, c)) in ratios(rows) {
         let f = |x: f64| {
@@ -338,7 +389,7 @@ pub fn to_csv(rows: &[Row]) -> String {
     for (p, _) in PARTS {
         let _ = write!(s, ",share_{p}");
     }
-    s += ",share_no_task,checksum_fluid,checksum_particles\n";
+    s += ",share_no_task,checksum_fluid,checksum_particles,mlups_by_round\n";
     for r in rows {
         let _ = write!(
             s,
@@ -348,7 +399,8 @@ pub fn to_csv(rows: &[Row]) -> String {
         for x in &r.shares {
             let _ = write!(s, ",{x:.4}");
         }
-        let _ = writeln!(s, ",{},{}", r.checksums.0, r.checksums.1);
+        let all: Vec<String> = r.rounds_mlups.iter().map(|m| format!("{m:.6}")).collect();
+        let _ = writeln!(s, ",{},{},{}", r.checksums.0, r.checksums.1, all.join(";"));
     }
     s
 }
@@ -356,6 +408,24 @@ pub fn to_csv(rows: &[Row]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A scene's row over several rounds is the median run (the lower middle one for an even count),
+    /// with every round's MLUPS kept in round order.
+    #[test]
+    fn rounds_keep_the_median_run_and_every_rounds_mlups() {
+        let row = |mlups: f64, wall: f64| Row {
+            mlups,
+            wall_seconds: wall,
+            rounds_mlups: vec![mlups],
+            ..Default::default()
+        };
+        let m = median_run(vec![row(50.0, 2.0), row(40.0, 2.5), row(45.0, 2.2)]);
+        assert_eq!((m.mlups, m.wall_seconds), (45.0, 2.2));
+        assert_eq!(m.rounds_mlups, vec![50.0, 40.0, 45.0]);
+        let m = median_run(vec![row(50.0, 2.0), row(40.0, 2.5)]);
+        assert_eq!(m.mlups, 40.0);
+        assert_eq!(median_run(vec![row(7.0, 1.0)]).rounds_mlups, vec![7.0]);
+    }
 
     /// The quick table as the CI runs it: every row's part times fit in its thread time, the two runs of
     /// a scene share their blocks and fluid cells, only the coupled run has coupling and rigid-body
@@ -367,6 +437,8 @@ mod tests {
             quick: true,
             threads: 2,
             baseline: None,
+            rounds: 1,
+            program: None,
             out: out.clone(),
             configs: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs"),
         };

@@ -65,6 +65,10 @@ pub enum BenchKind {
         /// Another blockflow binary: its `run` repeats the coupled runs beside this one's.
         #[arg(long, value_name = "BINARY")]
         baseline: Option<PathBuf>,
+        /// Runs of each scene and variant, in an order that rotates from round to round; the table
+        /// shows the median (3 puts every run once in every position).
+        #[arg(long, default_value_t = 1)]
+        rounds: usize,
         /// Output folder (coupled.md, coupled.csv and the runs).
         #[arg(long, default_value = "out/coupled")]
         out: PathBuf,
@@ -125,12 +129,15 @@ pub fn execute(which: BenchKind) -> Result<()> {
             quick,
             threads,
             baseline,
+            rounds,
             out,
         } => {
             let opts = coupled::CoupledOptions {
                 quick,
                 threads,
                 baseline,
+                rounds,
+                program: std::env::current_exe().ok(),
                 out: out.clone(),
                 configs: accuracy::configs_dir(),
             };
