@@ -7,8 +7,8 @@
 //! task used (scheduling and idle), next to the shares of the paper's figure 7. With `--baseline`, the
 //! coupled runs are repeated with another `blockflow` binary (its `run` command), side by side on the
 //! same machine. With `--rounds N` every run of a scene is repeated N times, the order of a scene's runs
-//! rotating from round to round (on this VM the first run of a scene is up to 9 % faster than the ones
-//! after it, whichever binary it is); each row is then the run with the median MLUPS, and the MLUPS of
+//! rotating from round to round, so that no run always goes first while the machine's speed drifts
+//! (±10 % between runs on a 2-core VM); each row is then the run with the median MLUPS, and the MLUPS of
 //! every round are listed beside it. Every run, this program's and the baseline's, is a `blockflow run`
 //! in a process of its own.
 
