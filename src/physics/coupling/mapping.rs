@@ -406,24 +406,14 @@ fn rows<T: Real>(
                 pc.segments.extend_from_slice(&b.segments[a..e]);
             }
             if linked {
-                for (w, (m, sm)) in masks.iter().zip(&seconds).enumerate() {
-                    for x in bit_cells(m[0], w) {
-                        let bit = 1u64 << (x % 64);
-                        // The cell's directions: bit x % 64 of every direction's mask.
-                        let gather =
-                            |m: &[u64; Q]| (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
-                        pc.link_cells.push(LinkCell {
-                            cell: (base + x) as u32,
-                            dirs: gather(m),
-                            second_fluid: gather(sm),
-                            xyz: [x as u32, y as u32, z as u32],
-                        });
-                        counts[2] += 1;
-                        if st.near_wall.row(y, z)[w] & bit == 0 {
-                            counts[1] += 1;
-                        }
-                    }
-                }
+                let near_wall = st.near_wall.row(y, z);
+                push_link_cells(
+                    &mut pc.link_cells,
+                    (&masks, &seconds),
+                    near_wall,
+                    [base, y, z],
+                    &mut counts,
+                );
             }
             index.counts.push(counts);
             row += 1;
@@ -447,6 +437,35 @@ fn rows<T: Real>(
     pc.spare.link_cells = prev_links;
     pc.spare.index = prev_index;
     derived
+}
+
+/// Appends the link cells of row (y, z) (element index of its cell 0: `base`) from its link masks and
+/// second-cell masks per word (see [`link_masks`]), in x order, and counts them: `counts[2]` every link
+/// cell, `counts[1]` those not already near a wall (`near_wall`, the row's static near-wall bits).
+fn push_link_cells(
+    out: &mut Vec<LinkCell>,
+    (masks, seconds): (&[[u64; Q]], &[[u64; Q]]),
+    near_wall: &[u64],
+    [base, y, z]: [usize; 3],
+    counts: &mut [u32; 3],
+) {
+    for (w, (m, sm)) in masks.iter().zip(seconds).enumerate() {
+        for x in bit_cells(m[0], w) {
+            let bit = 1u64 << (x % 64);
+            // The cell's directions: bit x % 64 of every direction's mask.
+            let gather = |m: &[u64; Q]| (1..Q).fold(0u32, |d, q| d | ((((m[q] >> (x % 64)) & 1) as u32) << q));
+            out.push(LinkCell {
+                cell: (base + x) as u32,
+                dirs: gather(m),
+                second_fluid: gather(sm),
+                xyz: [x as u32, y as u32, z as u32],
+            });
+            counts[2] += 1;
+            if near_wall[w] & bit == 0 {
+                counts[1] += 1;
+            }
+        }
+    }
 }
 
 /// Per row (y, z) of a ghost-inclusive grid with `fy` × `fz` rows, from one flag per row in row order
