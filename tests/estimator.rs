@@ -248,7 +248,17 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
                 None => assert!(i == 2 && r[k].is_null(), "{r} {k}"),
             }
         }
+        // Held out by kind of block: the calibration scene's blocks all hold bodies at first, so its
+        // runs score block intervals of that kind.
+        let kinds = &r["interval_held_out_by_kind"];
+        for k in ["with bodies", "walls, no bodies", "fluid only"] {
+            assert!(kinds[k]["intervals"].as_u64().is_some(), "{r} {k}");
+        }
+        if i < 2 {
+            assert!(kinds["with bodies"]["intervals"].as_u64().unwrap() > 0, "{r}");
+        }
     }
+    assert!(json["noise_floor"]["between_blocks_by_kind"]["fluid only"]["intervals"].is_u64());
     // The written coefficients are the blockflow model's, all costs ≥ 0.
     let c = blockflow::estimator::Coefficients::load(&out.join("coefficients.toml")).unwrap();
     assert_eq!(c.model, blockflow::estimator::Model::Blockflow);

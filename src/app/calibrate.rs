@@ -16,7 +16,9 @@
 
 use crate::config::{self, Config};
 use crate::error::{io_err, Error, Result};
-use crate::estimator::{self, Coefficients, Evaluation, Model, PartTimes, Provenance, Quantities, Sample, Scores};
+use crate::estimator::{
+    self, BlockKind, Coefficients, Evaluation, Model, PartTimes, Provenance, Quantities, Sample, Scores,
+};
 use crate::io::plots;
 use crate::scenes;
 use crate::timeloop::{Observer, Recording, RunContext, RunEnd, TimeLoop};
@@ -578,6 +580,7 @@ fn fit_and_report(
             step_mad: noise.step_mad,
             between_blocks: noise.between_blocks.share(),
             between_blocks_samples: noise.between_blocks.total,
+            between_blocks_by_kind: kind_shares(&noise.between_blocks_by_kind),
         },
         part_share_median: share_median,
         seconds: t0.elapsed().as_secs_f64(),
@@ -609,6 +612,40 @@ pub struct ModelReport {
     pub median: BTreeMap<String, f64>,
     /// MAD of E_X per part (and `total`), in-sample.
     pub mad: BTreeMap<String, f64>,
+    /// `interval_held_out` by kind of block ([`BlockKind::label`]).
+    pub interval_held_out_by_kind: BTreeMap<String, KindShare>,
+}
+
+/// The interval share within 10 % of one kind of block ([`BlockKind`]) and how many block intervals it
+/// counts.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct KindShare {
+    /// Share within 10 % (NaN when none was scored).
+    pub share: f64,
+    /// Block intervals scored.
+    pub intervals: usize,
+}
+
+/// [`Scores::interval_by_kind`] keyed by the kinds' labels.
+fn by_kind(sc: &Scores) -> BTreeMap<String, KindShare> {
+    kind_shares(&sc.interval_by_kind)
+}
+
+/// Hits per kind of block ([`BlockKind::index`]) keyed by the kinds' labels.
+fn kind_shares(hits: &[estimator::Hits; 3]) -> BTreeMap<String, KindShare> {
+    BlockKind::ALL
+        .iter()
+        .map(|k| {
+            let h = hits[k.index()];
+            (
+                k.label().to_string(),
+                KindShare {
+                    share: h.share(),
+                    intervals: h.total,
+                },
+            )
+        })
+        .collect()
 }
 
 impl ModelReport {
@@ -635,6 +672,7 @@ impl ModelReport {
             share_within_10pct: share,
             median,
             mad,
+            interval_held_out_by_kind: by_kind(held),
         }
     }
 }
@@ -651,6 +689,8 @@ pub struct RunScores {
     pub interval_held_out: f64,
     /// Predicted at the interval's start, fitted without this run.
     pub interval_predictive: f64,
+    /// `interval_held_out` by kind of block ([`BlockKind::label`]).
+    pub interval_held_out_by_kind: BTreeMap<String, KindShare>,
 }
 
 impl RunScores {
@@ -660,6 +700,7 @@ impl RunScores {
             interval_in_sample: in_sample.interval.share(),
             interval_held_out: held.interval.share(),
             interval_predictive: held.predictive.share(),
+            interval_held_out_by_kind: by_kind(held),
         }
     }
 }
@@ -682,6 +723,8 @@ pub struct NoiseReport {
     pub between_blocks: f64,
     /// Interval sums in such groups.
     pub between_blocks_samples: usize,
+    /// `between_blocks` by the groups' kind of block ([`BlockKind::label`]).
+    pub between_blocks_by_kind: BTreeMap<String, KindShare>,
 }
 
 /// What the campaign recorded: the samples, which blocks of each run never hold fluid, the runs, the
@@ -873,17 +916,47 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         pct(r.noise_floor.interval)
     );
     if !r.by_run.is_empty() {
-        s += &format!("\nPer run ({} model): interval shares within 10 %\n\n", r.model);
-        s += "| run | in-sample | held out | predictive |\n|---|---:|---:|---:|\n";
+        // Held out by kind of block: share (block intervals scored), "-" where the run has none.
+        let kind = |m: &BTreeMap<String, KindShare>, k: BlockKind| {
+            let x = m[k.label()];
+            if x.intervals == 0 {
+                "-".to_string()
+            } else {
+                format!("{} ({})", pct(x.share), x.intervals)
+            }
+        };
+        s += &format!(
+            "\nPer run ({} model): interval shares within 10 %; held out by kind of block (block intervals)\n\n",
+            r.model
+        );
+        s += "| run | in-sample | held out | predictive |";
+        for k in BlockKind::ALL {
+            s += &format!(" held out, {} |", k.label());
+        }
+        s += "\n|---|---:|---:|---:|---:|---:|---:|\n";
         for x in &r.by_run {
             s += &format!(
-                "| {} | {} | {} | {} |\n",
+                "| {} | {} | {} | {} |",
                 x.scene,
                 pct(x.interval_in_sample),
                 pct(x.interval_held_out),
                 pct(x.interval_predictive)
             );
+            for k in BlockKind::ALL {
+                s += &format!(" {} |", kind(&x.interval_held_out_by_kind, k));
+            }
+            s += "\n";
         }
+        let all = &r.models[&r.model].interval_held_out_by_kind;
+        s += "| all runs | | | |";
+        for k in BlockKind::ALL {
+            s += &format!(" {} |", kind(all, k));
+        }
+        s += "\n| noise floor between identical blocks | | | |";
+        for k in BlockKind::ALL {
+            s += &format!(" {} |", kind(&r.noise_floor.between_blocks_by_kind, k));
+        }
+        s += "\n";
     }
     s += &if r.noise_floor.step_samples == 0 {
         "\nnoise floor: no block was timed on 10 consecutive steps with nothing changed\n".to_string()

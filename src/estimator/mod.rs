@@ -30,7 +30,9 @@ pub use coefficients::{Coefficients, Provenance};
 pub use fit::{cross_validate, cross_validate_by_run, fit};
 pub use model::Model;
 pub use quantities::Quantities;
-pub use stats::{evaluate, mad, median, noise_floor, score, Evaluation, Hits, NoiseFloor, PartStats, Scores};
+pub use stats::{
+    evaluate, mad, median, noise_floor, score, BlockKind, Evaluation, Hits, NoiseFloor, PartStats, Scores,
+};
 pub use weights::{measured, Corrector};
 
 use crate::physics::parts::{ByPart, Part};
