@@ -259,6 +259,15 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
         }
     }
     assert!(json["noise_floor"]["between_blocks_by_kind"]["fluid only"]["intervals"].is_u64());
+    for key in ["interval_held_out_by_kind", "interval_predictive_by_kind"] {
+        assert!(
+            json["models"]["blockflow"][key]["with bodies"]["intervals"]
+                .as_u64()
+                .unwrap()
+                > 0,
+            "{key}"
+        );
+    }
     // The written coefficients are the blockflow model's, all costs ≥ 0.
     let c = blockflow::estimator::Coefficients::load(&out.join("coefficients.toml")).unwrap();
     assert_eq!(c.model, blockflow::estimator::Model::Blockflow);

@@ -614,6 +614,8 @@ pub struct ModelReport {
     pub mad: BTreeMap<String, f64>,
     /// `interval_held_out` by kind of block ([`BlockKind::label`]).
     pub interval_held_out_by_kind: BTreeMap<String, KindShare>,
+    /// `interval_predictive` by kind of block.
+    pub interval_predictive_by_kind: BTreeMap<String, KindShare>,
 }
 
 /// The interval share within 10 % of one kind of block ([`BlockKind`]) and how many block intervals it
@@ -673,6 +675,7 @@ impl ModelReport {
             median,
             mad,
             interval_held_out_by_kind: by_kind(held),
+            interval_predictive_by_kind: kind_shares(&held.predictive_by_kind),
         }
     }
 }
@@ -947,10 +950,14 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
             }
             s += "\n";
         }
-        let all = &r.models[&r.model].interval_held_out_by_kind;
+        let chosen = &r.models[&r.model];
         s += "| all runs | | | |";
         for k in BlockKind::ALL {
-            s += &format!(" {} |", kind(all, k));
+            s += &format!(" {} |", kind(&chosen.interval_held_out_by_kind, k));
+        }
+        s += "\n| all runs, predictive | | | |";
+        for k in BlockKind::ALL {
+            s += &format!(" {} |", kind(&chosen.interval_predictive_by_kind, k));
         }
         s += "\n| noise floor between identical blocks | | | |";
         for k in BlockKind::ALL {

@@ -131,6 +131,8 @@ pub struct Scores {
     /// `interval` split by the kind of block ([`BlockKind`], indexed by [`BlockKind::index`]): where in
     /// a scene the misses lie.
     pub interval_by_kind: [Hits; 3],
+    /// `predictive` split likewise.
+    pub predictive_by_kind: [Hits; 3],
 }
 
 impl Scores {
@@ -140,6 +142,9 @@ impl Scores {
         self.interval.add(&o.interval);
         self.predictive.add(&o.predictive);
         for (a, b) in self.interval_by_kind.iter_mut().zip(&o.interval_by_kind) {
+            a.add(b);
+        }
+        for (a, b) in self.predictive_by_kind.iter_mut().zip(&o.predictive_by_kind) {
             a.add(b);
         }
     }
@@ -289,8 +294,9 @@ pub fn score(c: &Coefficients, samples: &[Sample], interval: u64) -> Scores {
                 let e = if sp > 0.0 { (p[i] / sp - ms) / ms } else { f64::INFINITY };
                 sc.interval.count(e);
                 sc.interval_by_kind[kind[i].index()].count(e);
-                sc.predictive
-                    .count(if sw > 0.0 { (w[i] / sw - ms) / ms } else { f64::INFINITY });
+                let e = if sw > 0.0 { (w[i] / sw - ms) / ms } else { f64::INFINITY };
+                sc.predictive.count(e);
+                sc.predictive_by_kind[kind[i].index()].count(e);
             }
         }
     }
@@ -614,6 +620,8 @@ mod tests {
         assert_eq!(bodies, Hits { within: 3, total: 3 });
         assert_eq!(walls, Hits { within: 1, total: 1 });
         assert_eq!(fluid, Hits { within: 0, total: 2 });
+        // At the interval's start block 1 has no body yet, but its weight equals the others' either way.
+        assert_eq!(sc.predictive_by_kind, sc.interval_by_kind);
         assert_eq!(BlockKind::ALL.map(BlockKind::index), [0, 1, 2]);
     }
 
