@@ -217,6 +217,7 @@ impl Observer<f64> for Sampler {
                 q.contacts_seen,
                 q.scanned,
                 q.wall_lines,
+                q.scalar_cells,
             ];
             let counts: Vec<String> = counts.iter().map(|x| x.to_string()).collect();
             self.csv += &format!(
@@ -761,7 +762,7 @@ fn record(plans: &[Plan]) -> Result<Campaign> {
         csv: String::from(
             "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,particle_links,\
              link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,contacts_seen,\
-             scanned,wall_lines,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
+             scanned,wall_lines,scalar_cells,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
         ),
     };
     for (r, p) in plans.iter().enumerate() {
@@ -1043,6 +1044,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
         "m_rb",
         "breaks",
         "wall_lines",
+        "scalar_cells",
     ];
     let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
     let mut c = Campaign {
@@ -1090,6 +1092,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
             rb_active: v[24],
             contacts_seen: v[25],
             scanned: v[26],
+            scalar_cells: v[34],
         };
         let m = PartTimes {
             lbm: v[27],

@@ -10,7 +10,7 @@
 //!
 //! | part | paper | `blockflow` |
 //! |---|---|---|
-//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
+//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), scalar cells (the last len mod lanes cells of each run, which the kernel updates one at a time), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
 //! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [links > 0] (a block without links has no boundary pass) |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |
@@ -30,7 +30,7 @@ pub enum Model {
 }
 
 /// Most regressors of any part in any model.
-pub const MAX_TERMS: usize = 7;
+pub const MAX_TERMS: usize = 8;
 
 /// The regressor values of one part for one block and step (the first `len` entries of `v`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -79,6 +79,10 @@ const BLOCKFLOW: [Terms; 5] = [
         ("fluid_cells", "fluid cells F"),
         ("runs", "runs of fluid cells"),
         ("breaks", "runs that restart the memory streams"),
+        (
+            "scalar_cells",
+            "fluid cells at run tails the kernel updates one at a time",
+        ),
         ("active", "1 if F > 0"),
         ("cells", "C if F > 0"),
         (
@@ -195,6 +199,7 @@ fn blockflow_row(part: usize, q: &Quantities) -> Row {
             q.f,
             q.runs,
             q.breaks,
+            q.scalar_cells,
             fluid,
             q.c * fluid,
             q.c * fluid * (1.0 - links),
@@ -293,9 +298,12 @@ mod tests {
         assert_eq!(m.row(1, &walled).as_slice(), &[5.0, 0.0, 0.0, 0.0, 1.0]);
         assert_eq!(
             m.row(0, &open).as_slice(),
-            &[4096.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
         );
-        assert_eq!(m.row(0, &walled).as_slice(), &[4096.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]);
+        assert_eq!(
+            m.row(0, &walled).as_slice(),
+            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
+        );
         assert_eq!(Model::parse(Model::Paper.name()), Some(Model::Paper));
         assert_eq!(Model::parse("cells"), None);
     }

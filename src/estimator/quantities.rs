@@ -22,6 +22,13 @@ pub fn stream_breaks(segs: &[Segment]) -> f64 {
     n as f64
 }
 
+/// The cells of `segs` that the fluid kernel updates one at a time: each run is swept `lanes` cells per
+/// vector step, and its last `len mod lanes` cells by the scalar path (a row cut short by a wall or a
+/// body leaves such a tail; full rows of a block whose edge is a multiple of `lanes` do not).
+pub fn scalar_cells(segs: &[Segment], lanes: usize) -> f64 {
+    segs.iter().map(|s| s.len % lanes).sum::<usize>() as f64
+}
+
 /// Table 1 quantities of one block in one step, plus what this engine's tasks did in it (all f64, so
 /// that they enter the regressions directly).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -89,6 +96,9 @@ pub struct Quantities {
     /// Entries of the neighbours' published lists read to gather locals and shadows, per sub-step.
     #[serde(default)]
     pub scanned: f64,
+    /// Fluid cells the kernel updates by its scalar path ([`scalar_cells`]).
+    #[serde(default)]
+    pub scalar_cells: f64,
 }
 
 impl Quantities {
@@ -112,6 +122,7 @@ impl Quantities {
                 q.nb = pc.near_boundary_cells as f64;
                 q.runs = pc.segments.len() as f64;
                 q.breaks = stream_breaks(&pc.segments);
+                q.scalar_cells = scalar_cells(&pc.segments, T::LANES);
                 q.link_cells = pc.link_cells.len() as f64;
                 q.particle_links = pc.link_cells.iter().map(|l| l.dirs.count_ones() as f64).sum();
                 // The mapping ran in the last step only where the block was active (else the overlay
@@ -130,6 +141,7 @@ impl Quantities {
                 q.nb = blk.near_boundary_cells as f64;
                 q.runs = blk.segments.len() as f64;
                 q.breaks = stream_breaks(&blk.segments);
+                q.scalar_cells = scalar_cells(&blk.segments, T::LANES);
             }
         }
         if let Some(p) = sim.particles.as_ref().filter(|p| p.active[b]) {
@@ -206,5 +218,16 @@ mod tests {
         assert_eq!(stream_breaks(&[seg(35, 10), seg(35 + 10 + STREAM_GAP + 1, 6)]), 2.0);
         let cut: Vec<Segment> = (0..20).map(|y| seg(35 + 34 * y, 4)).collect();
         assert_eq!(stream_breaks(&cut), 20.0);
+    }
+
+    /// A full row of 32 cells is all vector steps of 4 (or 8); a row cut to 13 cells leaves 1 scalar
+    /// cell (5 at 8 lanes), one cut to 10 leaves 2 (2).
+    #[test]
+    fn scalar_cells_follow_the_vector_width() {
+        let (full, cut, late) = (seg(36, 32), seg(36 + 36, 13), seg(36 + 72 + 6, 10));
+        assert_eq!(scalar_cells(&[full], 4), 0.0);
+        assert_eq!(scalar_cells(&[full, cut, late], 4), 3.0);
+        assert_eq!(scalar_cells(&[full, cut, late], 8), 5.0 + 2.0);
+        assert_eq!(scalar_cells(&[], 4), 0.0);
     }
 }
