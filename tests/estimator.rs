@@ -268,6 +268,24 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
             "{key}"
         );
     }
+    // A refit of the campaign's samples names the scenes its calibration.json recorded.
+    let refit = tmp("calibrate-refit");
+    let samples = out.join("samples.csv");
+    let (code, _, stderr) = blockflow(&[
+        "calibrate",
+        "--samples",
+        samples.to_str().unwrap(),
+        "--out",
+        refit.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{stderr}");
+    let c = blockflow::estimator::Coefficients::load(&refit.join("coefficients.toml")).unwrap();
+    assert_eq!(c.provenance.scenes.len(), 3, "{:?}", c.provenance.scenes);
+    assert!(
+        c.provenance.scenes[2].contains("channel.toml"),
+        "{:?}",
+        c.provenance.scenes
+    );
     // The written coefficients are the blockflow model's, all costs ≥ 0.
     let c = blockflow::estimator::Coefficients::load(&out.join("coefficients.toml")).unwrap();
     assert_eq!(c.model, blockflow::estimator::Model::Blockflow);

@@ -395,6 +395,19 @@ fn today() -> String {
         .unwrap_or_default()
 }
 
+/// The scenes of the runs of the campaign that wrote `samples` (in run order), from the
+/// `calibration.json` in the same folder; `None` where there is none or it names no runs.
+fn recorded_scenes(samples: &Path) -> Option<Vec<String>> {
+    let text = std::fs::read_to_string(samples.with_file_name("calibration.json")).ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let names: Option<Vec<String>> = json["by_run"]
+        .as_array()?
+        .iter()
+        .map(|r| r["scene"].as_str().map(str::to_string))
+        .collect();
+    names.filter(|n| !n.is_empty())
+}
+
 /// Runs the campaign, fits, evaluates and writes `samples.csv`, `coefficients.toml`, `calibration.json`
 /// and the figures 6–8 into `o.out`.
 pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
@@ -403,20 +416,24 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let (c, scenes, origin) = match &o.samples {
         Some(path) => {
             let c = read_samples(path)?;
-            let scenes = c
-                .runs
-                .iter()
-                .enumerate()
-                .map(|(k, r)| {
-                    // samples.csv does not name the scene a run recorded (it may be a --with scene).
-                    format!(
-                        "run {k} of {}: b_s = {}, D = {}",
-                        path.display(),
-                        r.block_size,
-                        r.diameter
-                    )
-                })
-                .collect();
+            // samples.csv does not name the scene a run recorded (it may be a --with scene); the
+            // campaign's calibration.json beside it does.
+            let scenes = match recorded_scenes(path) {
+                Some(names) if names.len() == c.runs.len() => names,
+                _ => c
+                    .runs
+                    .iter()
+                    .enumerate()
+                    .map(|(k, r)| {
+                        format!(
+                            "run {k} of {}: b_s = {}, D = {}",
+                            path.display(),
+                            r.block_size,
+                            r.diameter
+                        )
+                    })
+                    .collect(),
+            };
             (c, scenes, format!("refit of {}", path.display()))
         }
         None => {
