@@ -646,11 +646,6 @@ pub struct KindShare {
     pub intervals: usize,
 }
 
-/// [`Scores::interval_by_kind`] keyed by the kinds' labels.
-fn by_kind(sc: &Scores) -> BTreeMap<String, KindShare> {
-    kind_shares(&sc.interval_by_kind)
-}
-
 /// Hits per kind of block ([`BlockKind::index`]) keyed by the kinds' labels.
 fn kind_shares(hits: &[estimator::Hits; 3]) -> BTreeMap<String, KindShare> {
     BlockKind::ALL
@@ -692,7 +687,7 @@ impl ModelReport {
             share_within_10pct: share,
             median,
             mad,
-            interval_held_out_by_kind: by_kind(held),
+            interval_held_out_by_kind: kind_shares(&held.interval_by_kind),
             interval_predictive_by_kind: kind_shares(&held.predictive_by_kind),
         }
     }
@@ -721,7 +716,7 @@ impl RunScores {
             interval_in_sample: in_sample.interval.share(),
             interval_held_out: held.interval.share(),
             interval_predictive: held.predictive.share(),
-            interval_held_out_by_kind: by_kind(held),
+            interval_held_out_by_kind: kind_shares(&held.interval_by_kind),
         }
     }
 }
