@@ -27,6 +27,20 @@ pub trait Vector: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = 
     /// # Safety
     /// `p .. p + LANES` must be writable.
     unsafe fn store(self, p: *mut Self::S);
+    /// Load for a step whose first `n` lanes (`n < LANES`) are used: the other lanes hold whatever
+    /// follows in memory.
+    ///
+    /// # Safety
+    /// `p .. p + LANES` must be readable.
+    unsafe fn load_first(p: *const Self::S, n: usize) -> Self;
+    /// Store of the first `n` lanes (`n < LANES`) to `p ..`: the values past them are read and written
+    /// back unchanged (a blend, which AVX2 does faster than a masked store on AMD cores).
+    ///
+    /// # Safety
+    /// `p .. p + LANES` must be readable and writable, and no other thread may access them meanwhile.
+    unsafe fn store_first(self, p: *mut Self::S, n: usize);
+    /// The first `n` lanes (`n < LANES`) kept, the others set to zero.
+    fn keep_first(self, n: usize) -> Self;
     /// `self * a + b`, fused (one rounding) when `FMA`, else a multiply and an add.
     fn madd<const FMA: bool>(self, a: Self, b: Self) -> Self;
     /// `b - self * a`, fused (one rounding) when `FMA`, else a multiply and a subtract.
@@ -55,6 +69,17 @@ macro_rules! scalar_vector {
             #[inline(always)]
             unsafe fn store(self, p: *mut $t) {
                 *p = self
+            }
+            #[inline(always)]
+            unsafe fn load_first(_p: *const $t, _n: usize) -> Self {
+                // n < LANES = 1: no lane is loaded.
+                0.0
+            }
+            #[inline(always)]
+            unsafe fn store_first(self, _p: *mut $t, _n: usize) {}
+            #[inline(always)]
+            fn keep_first(self, _n: usize) -> Self {
+                0.0
             }
             #[inline(always)]
             fn madd<const FMA: bool>(self, a: Self, b: Self) -> Self {
@@ -103,6 +128,11 @@ mod avx {
     use std::arch::x86_64::*;
     use std::ops::{Add, Mul, Sub};
 
+    /// Four all-ones lanes then four zero lanes: the four lanes from index 4 − n hold n ones first.
+    static MASK64: [i64; 8] = [-1, -1, -1, -1, 0, 0, 0, 0];
+    /// The same for eight f32 lanes.
+    static MASK32: [i32; 16] = [-1, -1, -1, -1, -1, -1, -1, -1, 0, 0, 0, 0, 0, 0, 0, 0];
+
     /// Four f64 lanes in an AVX register. Only construct inside AVX2-enabled code.
     #[derive(Clone, Copy)]
     pub struct F64x4(__m256d);
@@ -113,7 +143,16 @@ mod avx {
     macro_rules! avx_vector {
         ($v:ident, $t:ty, $n:expr, $reg:ty, $add:ident, $sub:ident, $mul:ident, $max:ident, $set1:ident,
          $loadu:ident, $storeu:ident, $cmpneq:ident, $movemask:ident, $zero:ident, $fmadd:ident,
-         $fnmadd:ident) => {
+         $fnmadd:ident, $mask_table:ident, $blendv:ident, $and:ident,
+         $from_int:ident) => {
+            impl $v {
+                /// The mask with the high bit of the first `n` lanes set.
+                #[inline(always)]
+                unsafe fn mask(n: usize) -> __m256i {
+                    debug_assert!(n < $n);
+                    _mm256_loadu_si256($mask_table.as_ptr().add($n - n) as *const __m256i)
+                }
+            }
             impl Add for $v {
                 type Output = $v;
                 #[inline(always)]
@@ -153,6 +192,20 @@ mod avx {
                 #[inline(always)]
                 unsafe fn store(self, p: *mut $t) {
                     $storeu(p, self.0)
+                }
+                #[inline(always)]
+                unsafe fn load_first(p: *const $t, _n: usize) -> Self {
+                    $v($loadu(p))
+                }
+                #[inline(always)]
+                unsafe fn store_first(self, p: *mut $t, n: usize) {
+                    let old = $loadu(p);
+                    $storeu(p, $blendv(old, self.0, $from_int(Self::mask(n))))
+                }
+                #[inline(always)]
+                fn keep_first(self, n: usize) -> Self {
+                    // SAFETY: as above.
+                    unsafe { $v($and(self.0, $from_int(Self::mask(n)))) }
                 }
                 #[inline(always)]
                 fn madd<const FMA: bool>(self, a: Self, b: Self) -> Self {
@@ -208,7 +261,11 @@ mod avx {
         _mm256_movemask_pd,
         _mm256_setzero_pd,
         _mm256_fmadd_pd,
-        _mm256_fnmadd_pd
+        _mm256_fnmadd_pd,
+        MASK64,
+        _mm256_blendv_pd,
+        _mm256_and_pd,
+        _mm256_castsi256_pd
     );
     avx_vector!(
         F32x8,
@@ -226,6 +283,10 @@ mod avx {
         _mm256_movemask_ps,
         _mm256_setzero_ps,
         _mm256_fmadd_ps,
-        _mm256_fnmadd_ps
+        _mm256_fnmadd_ps,
+        MASK32,
+        _mm256_blendv_ps,
+        _mm256_and_ps,
+        _mm256_castsi256_ps
     );
 }
