@@ -105,7 +105,7 @@ where
     let line = (64 / std::mem::size_of::<V::S>()).max(1);
     for (j, s) in segs.iter().enumerate() {
         match segs.get(j + PREFETCH_RUNS) {
-            Some(ahead) if ahead.len < PREFETCH_BELOW_LINES * line => prefetch_run(lp, ahead, line),
+            Some(ahead) if ahead.len < PREFETCH_BELOW_LINES * line => prefetch_run(lp, ahead, line, V::LANES),
             _ => {}
         }
         let mut i = s.start;
@@ -132,14 +132,15 @@ where
     finish(st)
 }
 
-/// Asks for every line of run `s` in the Q arrays a sweep loads from (`lp`); the stores go to lines the
-/// loads of the same or a neighbouring row bring in.
+/// Asks for every line of run `s` in the Q arrays a sweep loads from (`lp`), through the last element of
+/// its last vector step (`lanes` wide: a tail step also reads the elements after the run); the stores go
+/// to lines the loads of the same or a neighbouring row bring in.
 ///
 /// # Safety
 /// As for [`sweep_impl`]: `s` is one of its segments.
 #[inline(always)]
-unsafe fn prefetch_run<S>(lp: &[*const S; Q], s: &Segment, line: usize) {
-    let last = s.start + s.len - 1;
+unsafe fn prefetch_run<S>(lp: &[*const S; Q], s: &Segment, line: usize, lanes: usize) {
+    let last = s.start + s.len.div_ceil(lanes) * lanes - 1;
     for p in lp {
         let mut i = s.start;
         while i < last {

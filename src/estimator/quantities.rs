@@ -22,11 +22,12 @@ pub fn stream_breaks(segs: &[Segment]) -> f64 {
     n as f64
 }
 
-/// The cells of `segs` that the fluid kernel updates one at a time: each run is swept `lanes` cells per
-/// vector step, and its last `len mod lanes` cells by the scalar path (a row cut short by a wall or a
-/// body leaves such a tail; full rows of a block whose edge is a multiple of `lanes` do not).
-pub fn scalar_cells(segs: &[Segment], lanes: usize) -> f64 {
-    segs.iter().map(|s| s.len % lanes).sum::<usize>() as f64
+/// The runs of `segs` that end in a masked vector step: the fluid kernel sweeps each run `lanes` cells
+/// per vector step and its last `len mod lanes` cells in one more step with the other lanes masked, which
+/// costs about as much as a full one (a row cut short by a wall or a body leaves such a tail; full rows
+/// of a block whose edge is a multiple of `lanes` do not).
+pub fn tail_runs(segs: &[Segment], lanes: usize) -> f64 {
+    segs.iter().filter(|s| s.len % lanes != 0).count() as f64
 }
 
 /// Table 1 quantities of one block in one step, plus what this engine's tasks did in it (all f64, so
@@ -96,9 +97,9 @@ pub struct Quantities {
     /// Entries of the neighbours' published lists read to gather locals and shadows, per sub-step.
     #[serde(default)]
     pub scanned: f64,
-    /// Fluid cells the kernel updates by its scalar path ([`scalar_cells`]).
+    /// Runs whose last cells the kernel updates in a masked vector step ([`tail_runs`]).
     #[serde(default)]
-    pub scalar_cells: f64,
+    pub tail_runs: f64,
 }
 
 impl Quantities {
@@ -122,7 +123,7 @@ impl Quantities {
                 q.nb = pc.near_boundary_cells as f64;
                 q.runs = pc.segments.len() as f64;
                 q.breaks = stream_breaks(&pc.segments);
-                q.scalar_cells = scalar_cells(&pc.segments, T::LANES);
+                q.tail_runs = tail_runs(&pc.segments, T::LANES);
                 q.link_cells = pc.link_cells.len() as f64;
                 q.particle_links = pc.link_cells.iter().map(|l| l.dirs.count_ones() as f64).sum();
                 // The mapping ran in the last step only where the block was active (else the overlay
@@ -141,7 +142,7 @@ impl Quantities {
                 q.nb = blk.near_boundary_cells as f64;
                 q.runs = blk.segments.len() as f64;
                 q.breaks = stream_breaks(&blk.segments);
-                q.scalar_cells = scalar_cells(&blk.segments, T::LANES);
+                q.tail_runs = tail_runs(&blk.segments, T::LANES);
             }
         }
         if let Some(p) = sim.particles.as_ref().filter(|p| p.active[b]) {
@@ -220,14 +221,15 @@ mod tests {
         assert_eq!(stream_breaks(&cut), 20.0);
     }
 
-    /// A full row of 32 cells is all vector steps of 4 (or 8); a row cut to 13 cells leaves 1 scalar
-    /// cell (5 at 8 lanes), one cut to 10 leaves 2 (2).
+    /// A full row of 32 cells is all full vector steps of 4 (or 8); rows cut to 13 and 10 cells end in a
+    /// masked step at either width, one of 8 cells at neither, one of 4 only at 8 lanes.
     #[test]
-    fn scalar_cells_follow_the_vector_width() {
-        let (full, cut, late) = (seg(36, 32), seg(36 + 36, 13), seg(36 + 72 + 6, 10));
-        assert_eq!(scalar_cells(&[full], 4), 0.0);
-        assert_eq!(scalar_cells(&[full, cut, late], 4), 3.0);
-        assert_eq!(scalar_cells(&[full, cut, late], 8), 5.0 + 2.0);
-        assert_eq!(scalar_cells(&[], 4), 0.0);
+    fn tail_runs_follow_the_vector_width() {
+        let (full, cut, late, whole) = (seg(36, 32), seg(36 + 36, 13), seg(36 + 72 + 6, 10), seg(36 + 144, 8));
+        assert_eq!(tail_runs(&[full], 4), 0.0);
+        assert_eq!(tail_runs(&[full, cut, late, whole], 4), 2.0);
+        assert_eq!(tail_runs(&[full, cut, late, whole], 8), 2.0);
+        assert_eq!(tail_runs(&[seg(36, 4)], 8), 1.0);
+        assert_eq!(tail_runs(&[], 4), 0.0);
     }
 }
