@@ -1,4 +1,4 @@
-//! `blockflow bench coupled [--quick] [--threads T] [--baseline BINARY] [--out DIR]`: the cost structure
+//! `blockflow bench coupled [--quick] [--threads T] [--baseline BINARY [--baseline-set KEY=VALUE]...] [--out DIR]`: the cost structure
 //! of the coupled step. Every particulate scene runs twice on the same blocks and geometry, with its
 //! bodies and fluid-only (`particles.enabled = false`), and a periodic fluid box on two big blocks gives
 //! the kernel's speed in the same run. Per run: MLUPS (fluid cells × steps / wall seconds), the LBM part's
@@ -201,6 +201,8 @@ pub struct CoupledOptions {
     pub threads: usize,
     /// Another `blockflow` binary whose `run` repeats the coupled runs.
     pub baseline: Option<PathBuf>,
+    /// Overrides (`KEY=VALUE`) the baseline's runs get after the scene's own.
+    pub baseline_sets: Vec<String>,
     /// Times every run is repeated, in an order that rotates from round to round (at least 1).
     pub rounds: usize,
     /// This program, to run each of its own runs in a fresh process as the baseline's are (`None`: in
@@ -226,7 +228,7 @@ fn sets_of(c: &Case, threads: usize, fluid_only: bool) -> Vec<String> {
 
 fn own_run(o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result<serde_json::Value> {
     if let Some(program) = &o.program {
-        return child_run(program, o, c, fluid_only, dir);
+        return child_run(program, &[], o, c, fluid_only, dir);
     }
     let cfg = config::load(&o.configs.join(c.file), &sets_of(c, o.threads, fluid_only))?;
     let opts = RunOptions {
@@ -237,11 +239,19 @@ fn own_run(o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result
     serde_json::to_value(&s).map_err(|e| Error::Io(format!("summary of {}: {e}", c.name)))
 }
 
-/// One run of `bin` (`blockflow run` with the case's overrides) in a process of its own; its summary.
-fn child_run(bin: &Path, o: &CoupledOptions, c: &Case, fluid_only: bool, dir: &Path) -> Result<serde_json::Value> {
+/// One run of `bin` (`blockflow run` with the case's overrides, then `extra`) in a process of its own; its
+/// summary.
+fn child_run(
+    bin: &Path,
+    extra: &[String],
+    o: &CoupledOptions,
+    c: &Case,
+    fluid_only: bool,
+    dir: &Path,
+) -> Result<serde_json::Value> {
     let mut cmd = std::process::Command::new(bin);
     cmd.arg("run").arg(o.configs.join(c.file)).arg("--out").arg(dir);
-    for s in sets_of(c, o.threads, fluid_only) {
+    for s in sets_of(c, o.threads, fluid_only).iter().chain(extra) {
         cmd.arg("--set").arg(s);
     }
     let out = cmd
@@ -289,7 +299,12 @@ pub fn run(o: &CoupledOptions) -> Result<Vec<Row>> {
                     at = at.join(format!("round-{round}"));
                 }
                 let s = match (variants[v], &o.baseline) {
-                    ("baseline", Some(bin)) => child_run(bin, o, &c, false, &at)?,
+                    ("baseline", Some(bin)) => child_run(bin, &o.baseline_sets, o, &c, false, &at).map_err(|e| {
+                        Error::Config(format!(
+                            "{e} (an older baseline may need its own settings: --baseline-set KEY=VALUE, e.g. \
+                             balance.coefficients=\"OLD.toml\")"
+                        ))
+                    })?,
                     (variant, _) => own_run(o, &c, variant == "fluid-only", &at)?,
                 };
                 runs[v].push(Row::of(c.name, variants[v], &s)?);
@@ -427,6 +442,41 @@ mod tests {
         assert_eq!(median_run(vec![row(7.0, 1.0)]).rounds_mlups, vec![7.0]);
     }
 
+    /// A baseline's runs get the case's overrides and then `--baseline-set`'s, last, so they win; its
+    /// failure names the binary and the case and says how to give it its own settings. The baseline
+    /// here is a script that prints its arguments and fails.
+    #[cfg(unix)]
+    #[test]
+    fn baseline_gets_its_overrides_last_and_its_failure_is_one_line() {
+        use std::os::unix::fs::PermissionsExt;
+        let out = std::env::temp_dir().join(format!("blockflow-bench-baseline-{}", std::process::id()));
+        std::fs::create_dir_all(&out).expect("temp dir");
+        let script = out.join("old-blockflow");
+        std::fs::write(&script, "#!/bin/sh\necho \"$@\" >&2\nexit 3\n").expect("script");
+        std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).expect("chmod");
+        let o = CoupledOptions {
+            quick: true,
+            threads: 2,
+            baseline: Some(script.clone()),
+            baseline_sets: vec!["balance.coefficients=\"old.toml\"".into()],
+            rounds: 1,
+            program: None,
+            out: out.clone(),
+            configs: PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs"),
+        };
+        let e = run(&o).expect_err("the script fails").to_string();
+        assert!(!e.contains('\n'), "{e}");
+        assert!(e.contains(&format!("{} failed on hopper-small", script.display())), "{e}");
+        let args = e.split("hopper-small: ").nth(1).expect("the script's output");
+        assert!(args.starts_with("run "), "{e}");
+        assert!(
+            args.contains("--set processes.threads_per_process=2 --set balance.coefficients=\"old.toml\" ("),
+            "{e}"
+        );
+        assert!(e.contains("--baseline-set KEY=VALUE"), "{e}");
+        std::fs::remove_dir_all(&out).ok();
+    }
+
     /// The quick table as the CI runs it: every row's part times fit in its thread time, the two runs of
     /// a scene share their blocks and fluid cells, only the coupled run has coupling and rigid-body
     /// work, and MLUPS and the ratios follow from the measured times.
@@ -437,6 +487,7 @@ mod tests {
             quick: true,
             threads: 2,
             baseline: None,
+            baseline_sets: Vec::new(),
             rounds: 1,
             program: None,
             out: out.clone(),

@@ -65,6 +65,11 @@ pub enum BenchKind {
         /// Another blockflow binary: its `run` repeats the coupled runs beside this one's.
         #[arg(long, value_name = "BINARY")]
         baseline: Option<PathBuf>,
+        /// A `KEY=VALUE` override the baseline's runs get after the scene's own (repeatable), e.g.
+        /// `balance.coefficients="OLD.toml"` for a binary that does not know the current coefficient
+        /// file's keys.
+        #[arg(long = "baseline-set", value_name = "KEY=VALUE", requires = "baseline")]
+        baseline_set: Vec<String>,
         /// Runs of each scene and variant, in an order that rotates from round to round; the table
         /// shows the median (3 puts every run once in every position).
         #[arg(long, default_value_t = 1)]
@@ -129,6 +134,7 @@ pub fn execute(which: BenchKind) -> Result<()> {
             quick,
             threads,
             baseline,
+            baseline_set,
             rounds,
             out,
         } => {
@@ -136,6 +142,7 @@ pub fn execute(which: BenchKind) -> Result<()> {
                 quick,
                 threads,
                 baseline,
+                baseline_sets: baseline_set,
                 rounds,
                 program: std::env::current_exe().ok(),
                 out: out.clone(),
