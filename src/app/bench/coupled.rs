@@ -466,7 +466,10 @@ mod tests {
         };
         let e = run(&o).expect_err("the script fails").to_string();
         assert!(!e.contains('\n'), "{e}");
-        assert!(e.contains(&format!("{} failed on hopper-small", script.display())), "{e}");
+        assert!(
+            e.contains(&format!("{} failed on hopper-small", script.display())),
+            "{e}"
+        );
         let args = e.split("hopper-small: ").nth(1).expect("the script's output");
         assert!(args.starts_with("run "), "{e}");
         assert!(
