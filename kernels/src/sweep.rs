@@ -63,6 +63,10 @@ fn offsets(layout: &Layout) -> [isize; Q] {
     std::array::from_fn(|q| layout.offset(C[q]))
 }
 
+/// Asserts that every segment lies in the block interior. That also keeps a tail step's L − 1 elements
+/// past a run inside the field: after the last interior cell come the ghost row and plane (and, past the
+/// ghost corner, the direction stride's page rounding and skew), which hold more than the largest
+/// offset plus L − 1 elements.
 fn check_segments(layout: &Layout, segs: &[Segment]) {
     let lo = layout.idx(1, 1, 1);
     let hi = layout.idx(layout.size[0], layout.size[1], layout.size[2]);
@@ -116,8 +120,8 @@ where
         }
         let rest = end - i;
         if rest > 0 {
-            // The last len mod L cells in one masked vector step: the other lanes neither load nor store,
-            // and their statistics are dropped.
+            // The last len mod L cells in one more vector step: the other lanes load what follows the run
+            // and write it back unchanged, and their statistics are dropped.
             let mut tail = LaneStats::<V>::new();
             trt_cell::<V, FORCE, FMA>(
                 |q| V::load_first(lp[q].add(i), rest),
@@ -478,7 +482,7 @@ mod tests {
     }
 
     /// Every run length from 1 to 2L + 1 at every start within a vector: the sweep this CPU dispatches
-    /// (masked vector tails where AVX2 is found) writes the same bits as the one-lane path with the same
+    /// (a vector tail step where AVX2 is found) writes the same bits as the one-lane path with the same
     /// fused multiply-adds, with the same statistics, and no element outside the runs changes.
     fn tails_equal_one_lane<T: Real>() {
         #[cfg(target_arch = "x86_64")]
@@ -533,7 +537,7 @@ mod tests {
     }
 
     #[test]
-    fn masked_tails_equal_the_one_lane_path() {
+    fn vector_tails_equal_the_one_lane_path() {
         tails_equal_one_lane::<f64>();
         tails_equal_one_lane::<f32>();
     }

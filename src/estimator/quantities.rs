@@ -22,10 +22,10 @@ pub fn stream_breaks(segs: &[Segment]) -> f64 {
     n as f64
 }
 
-/// The runs of `segs` that end in a masked vector step: the fluid kernel sweeps each run `lanes` cells
-/// per vector step and its last `len mod lanes` cells in one more step with the other lanes masked, which
-/// costs about as much as a full one (a row cut short by a wall or a body leaves such a tail; full rows
-/// of a block whose edge is a multiple of `lanes` do not).
+/// The runs of `segs` that end in a vector tail step: the fluid kernel sweeps each run `lanes` cells
+/// per vector step and its last `len mod lanes` cells in one more step whose other lanes write back what
+/// they read, which costs about as much as a full one (a row cut short by a wall or a body leaves such a
+/// tail; full rows of a block whose edge is a multiple of `lanes` do not).
 pub fn tail_runs(segs: &[Segment], lanes: usize) -> f64 {
     segs.iter().filter(|s| s.len % lanes != 0).count() as f64
 }
@@ -97,7 +97,7 @@ pub struct Quantities {
     /// Entries of the neighbours' published lists read to gather locals and shadows, per sub-step.
     #[serde(default)]
     pub scanned: f64,
-    /// Runs whose last cells the kernel updates in a masked vector step ([`tail_runs`]).
+    /// Runs whose last cells the kernel updates in a vector tail step ([`tail_runs`]).
     #[serde(default)]
     pub tail_runs: f64,
 }
@@ -222,7 +222,7 @@ mod tests {
     }
 
     /// A full row of 32 cells is all full vector steps of 4 (or 8); rows cut to 13 and 10 cells end in a
-    /// masked step at either width, one of 8 cells at neither, one of 4 only at 8 lanes.
+    /// tail step at either width, one of 8 cells at neither, one of 4 only at 8 lanes.
     #[test]
     fn tail_runs_follow_the_vector_width() {
         let (full, cut, late, whole) = (seg(36, 32), seg(36 + 36, 13), seg(36 + 72 + 6, 10), seg(36 + 144, 8));
