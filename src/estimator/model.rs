@@ -297,11 +297,11 @@ mod tests {
         assert_eq!(m.row(1, &walled).as_slice(), &[5.0, 0.0, 0.0, 0.0, 1.0]);
         assert_eq!(
             m.row(0, &open).as_slice(),
-            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
         );
         assert_eq!(
             m.row(0, &walled).as_slice(),
-            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
         );
         assert_eq!(Model::parse(Model::Paper.name()), Some(Model::Paper));
         assert_eq!(Model::parse("cells"), None);
