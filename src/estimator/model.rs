@@ -10,7 +10,7 @@
 //!
 //! | part | paper | `blockflow` |
 //! |---|---|---|
-//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), tail runs (runs whose last len mod lanes cells the kernel updates in one vector tail step), unaligned cells (the fluid cells of runs that start inside a vector, whose vector steps all straddle vector boundaries), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
+//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), tail runs (runs whose last len mod lanes cells the kernel updates in one vector tail step), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
 //! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [links > 0] (a block without links has no boundary pass) |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |
@@ -30,7 +30,7 @@ pub enum Model {
 }
 
 /// Most regressors of any part in any model.
-pub const MAX_TERMS: usize = 9;
+pub const MAX_TERMS: usize = 8;
 
 /// The regressor values of one part for one block and step (the first `len` entries of `v`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,7 +80,6 @@ const BLOCKFLOW: [Terms; 5] = [
         ("runs", "runs of fluid cells"),
         ("breaks", "runs that restart the memory streams"),
         ("tail_runs", "runs that end in a vector tail step"),
-        ("unaligned_cells", "fluid cells of runs that start inside a vector"),
         ("active", "1 if F > 0"),
         ("cells", "C if F > 0"),
         (
@@ -198,7 +197,6 @@ fn blockflow_row(part: usize, q: &Quantities) -> Row {
             q.runs,
             q.breaks,
             q.tail_runs,
-            q.unaligned_cells,
             fluid,
             q.c * fluid,
             q.c * fluid * (1.0 - links),
@@ -297,11 +295,11 @@ mod tests {
         assert_eq!(m.row(1, &walled).as_slice(), &[5.0, 0.0, 0.0, 0.0, 1.0]);
         assert_eq!(
             m.row(0, &open).as_slice(),
-            &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
         );
         assert_eq!(
             m.row(0, &walled).as_slice(),
-            &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
         );
         assert_eq!(Model::parse(Model::Paper.name()), Some(Model::Paper));
         assert_eq!(Model::parse("cells"), None);

@@ -30,18 +30,6 @@ pub fn tail_runs(segs: &[Segment], lanes: usize) -> f64 {
     segs.iter().filter(|s| s.len % lanes != 0).count() as f64
 }
 
-/// The fluid cells of the runs of `segs` that start inside a vector: the fluid kernel sweeps each run in
-/// steps of `lanes` cells from its first cell, and x = 1 sits at a multiple of `lanes` (element indices),
-/// so every load and store of such a run's arrays without an x offset straddles a vector boundary, and
-/// every other one a cache line. A wall or a body that cuts a row leaves the run after it starting
-/// anywhere; a row that starts at x = 1 does not.
-pub fn unaligned_cells(segs: &[Segment], lanes: usize) -> f64 {
-    segs.iter()
-        .filter(|s| s.start % lanes != 0)
-        .map(|s| s.len)
-        .sum::<usize>() as f64
-}
-
 /// Table 1 quantities of one block in one step, plus what this engine's tasks did in it (all f64, so
 /// that they enter the regressions directly).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -112,10 +100,6 @@ pub struct Quantities {
     /// Runs whose last cells the kernel updates in a vector tail step ([`tail_runs`]).
     #[serde(default)]
     pub tail_runs: f64,
-    /// Fluid cells of the runs that start inside a vector, whose vector steps all straddle vector
-    /// boundaries ([`unaligned_cells`]).
-    #[serde(default)]
-    pub unaligned_cells: f64,
 }
 
 impl Quantities {
@@ -140,7 +124,6 @@ impl Quantities {
                 q.runs = pc.segments.len() as f64;
                 q.breaks = stream_breaks(&pc.segments);
                 q.tail_runs = tail_runs(&pc.segments, T::LANES);
-                q.unaligned_cells = unaligned_cells(&pc.segments, T::LANES);
                 q.link_cells = pc.link_cells.len() as f64;
                 q.particle_links = pc.link_cells.iter().map(|l| l.dirs.count_ones() as f64).sum();
                 // The mapping ran in the last step only where the block was active (else the overlay
@@ -160,7 +143,6 @@ impl Quantities {
                 q.runs = blk.segments.len() as f64;
                 q.breaks = stream_breaks(&blk.segments);
                 q.tail_runs = tail_runs(&blk.segments, T::LANES);
-                q.unaligned_cells = unaligned_cells(&blk.segments, T::LANES);
             }
         }
         if let Some(p) = sim.particles.as_ref().filter(|p| p.active[b]) {
@@ -241,18 +223,6 @@ mod tests {
 
     /// A full row of 32 cells is all full vector steps of 4 (or 8); rows cut to 13 and 10 cells end in a
     /// tail step at either width, one of 8 cells at neither, one of 4 only at 8 lanes.
-    /// With x = 1 at elements 40 and 80 (multiples of 4 and 8): runs from x = 1 and x = 5 start on the
-    /// 4-lane grid, runs of 3 and 10 cells from x = 2 and x = 4 off it; at 8 lanes the 4 cells from x = 5
-    /// are off it too; one lane has no grid to miss.
-    #[test]
-    fn unaligned_cells_follow_the_vector_width() {
-        let runs = [seg(40, 16), seg(44, 4), seg(81, 3), seg(83, 10)];
-        assert_eq!(unaligned_cells(&runs, 4), 13.0);
-        assert_eq!(unaligned_cells(&runs, 8), 17.0);
-        assert_eq!(unaligned_cells(&runs, 1), 0.0);
-        assert_eq!(unaligned_cells(&[], 4), 0.0);
-    }
-
     #[test]
     fn tail_runs_follow_the_vector_width() {
         let (full, cut, late, whole) = (seg(36, 32), seg(36 + 36, 13), seg(36 + 72 + 6, 10), seg(36 + 144, 8));
