@@ -190,10 +190,17 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
     let out = tmp("calibrate-quick");
     let scene = format!("{}/configs/calibration.toml", env!("CARGO_MANIFEST_DIR"));
     let channel = format!("{}/configs/channel.toml", env!("CARGO_MANIFEST_DIR"));
+    // Two pinned workers where the machine has two cores: the thread count reaches the provenance.
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(2)
+        .to_string();
     let (code, stdout, stderr) = blockflow(&[
         "calibrate",
         &scene,
         "--quick",
+        "--threads",
+        &threads,
         "--with",
         &channel,
         "--with-steps",
@@ -235,6 +242,7 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
         }
     }
     assert_eq!(json["model"], "blockflow");
+    assert_eq!(json["threads"].to_string(), threads);
     assert!(json["never_fluid_samples"].as_u64().is_some());
     // One row of interval statistics per run, named by the scene it recorded (the --with scene last).
     let by_run = json["by_run"].as_array().unwrap();
@@ -286,6 +294,7 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
         "{:?}",
         c.provenance.scenes
     );
+    assert_eq!(c.provenance.threads.to_string(), threads);
     // The written coefficients are the blockflow model's, all costs ≥ 0.
     let c = blockflow::estimator::Coefficients::load(&out.join("coefficients.toml")).unwrap();
     assert_eq!(c.model, blockflow::estimator::Model::Blockflow);

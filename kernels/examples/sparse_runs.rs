@@ -45,6 +45,12 @@ fn main() {
         ("8 of 16 cells", runs(&|_, _| Some((1, 8)))),
         ("8 cells, shifted", runs(&|y, z| Some((1 + (y + z) % 9, 8)))),
         ("every other row", runs(&|y, z| ((y + z) % 2 == 0).then_some((1, n)))),
+        // Full rows, cut by plane in three ways: whole planes left out, the same rows of every plane,
+        // and (above) rows cut where a sloped wall crosses each plane.
+        ("first 7 planes, full rows", runs(&|_, z| (z <= 7).then_some((1, n)))),
+        ("every other plane", runs(&|_, z| (z % 2 == 0).then_some((1, n)))),
+        ("rows y <= 7 of every plane", runs(&|y, _| (y <= 7).then_some((1, n)))),
+        ("rows y >= 10 of every plane", runs(&|y, _| (y >= 10).then_some((1, n)))),
     ];
     println!("| runs | count | cells | µs per block | ns per cell | ns per run |\n|---|---:|---:|---:|---:|---:|");
     for round in 0..2 {

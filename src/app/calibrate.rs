@@ -11,8 +11,8 @@
 //! is a few task-clock reads (or 0), so a relative error says nothing of them, and a balancer gives
 //! them whatever the rigid-body terms predict.
 //!
-//! Every run uses one virtual process with one thread and one step per graph, so each task's CPU time
-//! belongs to exactly one block and step.
+//! Every run uses one virtual process with one step per graph, so each task's CPU time belongs to
+//! exactly one block and step; its workers (`--threads`, default one) are pinned to cores of their own.
 
 use crate::config::{self, Config};
 use crate::error::{io_err, Error, Result};
@@ -72,6 +72,12 @@ pub struct CalibrateArgs {
     /// Record only the calibration scene: no `--with` scenes, not even the default campaign's.
     #[arg(long, conflicts_with = "with")]
     pub calibration_only: bool,
+    /// Worker threads of every recording run, each pinned to a core of its own. 1 (the default) times
+    /// each block alone on its core; the machine's core count times it in the memory contention of a
+    /// run that uses every core. The coefficients are valid for runs in the regime they were timed in
+    /// (`threads` in their provenance; `blockflow study` records in it).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
     /// Output folder.
     #[arg(long, default_value = "out/calibration")]
     pub out: PathBuf,
@@ -101,6 +107,13 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
     if a.interval == 0 {
         return Err(Error::Config("calibrate: --interval must be at least 1 step".into()));
     }
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    if a.threads == 0 || a.threads > cores {
+        return Err(Error::Config(format!(
+            "calibrate: --threads {}: must be between 1 and this machine's {cores} cores (each worker is pinned to a core of its own)",
+            a.threads
+        )));
+    }
     let preset = !a.quick && !a.paper && a.samples.is_none() && a.block_sizes.is_empty() && a.diameters.is_empty();
     let with = if a.with.is_empty() && preset && !a.calibration_only {
         if let Some(missing) = DEFAULT_WITH.iter().find(|p| !Path::new(p).exists()) {
@@ -123,6 +136,7 @@ pub fn execute(a: CalibrateArgs) -> Result<()> {
         samples: a.samples,
         with,
         with_steps: a.with_steps,
+        threads: a.threads,
         out: a.out.clone(),
     };
     let report = run(&opts)?;
@@ -155,6 +169,8 @@ pub struct CalibrateOptions {
     pub with: Vec<PathBuf>,
     /// Steps of each scene of `with`.
     pub with_steps: u64,
+    /// Worker threads of every recording run, each pinned to a core of its own.
+    pub threads: usize,
     /// Output folder.
     pub out: PathBuf,
 }
@@ -265,6 +281,8 @@ pub struct RunInfo {
 pub struct CalibrationReport {
     /// The runs.
     pub runs: Vec<RunInfo>,
+    /// Worker threads of every recording run, each on a core of its own.
+    pub threads: usize,
     /// Samples in the fit (blocks with fluid).
     pub samples: usize,
     /// Samples of never-fluid blocks, left out of fit and statistics.
@@ -339,16 +357,24 @@ fn preset(o: &CalibrateOptions) -> Vec<(usize, f64, f64)> {
         .collect()
 }
 
-/// Keys every run of a campaign is recorded with.
-const RECORDING: [&str; 5] = [
-    // One worker on one core for the whole run (the paper pinned every process with LIKWID).
+/// Keys every run of a campaign is recorded with, its workers' count aside ([`recording`]).
+const RECORDING: [&str; 4] = [
+    // One process whose workers stay on their cores for the whole run (the paper pinned every
+    // process with LIKWID).
     "processes.count=1",
-    "processes.threads_per_process=1",
     "processes.steps_per_graph=1",
     "processes.pin=\"compact\"",
     // The campaign does not read the coefficients it is about to replace.
     "balance.weights=\"cells\"",
 ];
+
+/// The keys of a recording run of `o`: [`RECORDING`] and the workers' count.
+fn recording(o: &CalibrateOptions) -> impl Iterator<Item = String> {
+    RECORDING
+        .map(String::from)
+        .into_iter()
+        .chain([format!("processes.threads_per_process={}", o.threads)])
+}
 
 fn run_config(o: &CalibrateOptions, bs: usize, d: f64, duration: f64) -> Result<Config> {
     let sets: Vec<String> = [
@@ -357,7 +383,7 @@ fn run_config(o: &CalibrateOptions, bs: usize, d: f64, duration: f64) -> Result<
         format!("scene.duration={duration}"),
     ]
     .into_iter()
-    .chain(RECORDING.map(String::from))
+    .chain(recording(o))
     .collect();
     config::load(&o.scene, &sets)
 }
@@ -395,6 +421,14 @@ fn today() -> String {
         .unwrap_or_default()
 }
 
+/// The worker threads of the campaign that wrote `samples`, from the `calibration.json` in the same
+/// folder; `None` where there is none or it does not say.
+fn recorded_threads(samples: &Path) -> Option<usize> {
+    let text = std::fs::read_to_string(samples.with_file_name("calibration.json")).ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+    json["threads"].as_u64().map(|t| t as usize)
+}
+
 /// The scenes of the runs of the campaign that wrote `samples` (in run order), from the
 /// `calibration.json` in the same folder; `None` where there is none or it names no runs.
 fn recorded_scenes(samples: &Path) -> Option<Vec<String>> {
@@ -413,7 +447,7 @@ fn recorded_scenes(samples: &Path) -> Option<Vec<String>> {
 pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
     let t0 = Instant::now();
     std::fs::create_dir_all(&o.out).map_err(|e| io_err(&o.out, e))?;
-    let (c, scenes, origin) = match &o.samples {
+    let (c, scenes, origin, threads) = match &o.samples {
         Some(path) => {
             let c = read_samples(path)?;
             // samples.csv does not name the scene a run recorded (it may be a --with scene); the
@@ -434,11 +468,13 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
                     })
                     .collect(),
             };
-            (c, scenes, format!("refit of {}", path.display()))
+            // Campaigns from before `--threads` recorded on one worker.
+            let threads = recorded_threads(path).unwrap_or(1);
+            (c, scenes, format!("refit of {}", path.display()), threads)
         }
         None => {
             let (c, scenes) = campaign(o)?;
-            (c, scenes, String::from("blockflow calibrate"))
+            (c, scenes, String::from("blockflow calibrate"), o.threads)
         }
     };
     if c.samples.is_empty() {
@@ -450,7 +486,7 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
         let path = o.out.join("samples.csv");
         std::fs::write(&path, &c.csv).map_err(|e| io_err(&path, e))?;
     }
-    fit_and_report(o, &c, scenes, &origin, t0)
+    fit_and_report(o, &c, (scenes, threads), &origin, t0)
 }
 
 /// Runs the campaign of `o`; returns it and a description of every run.
@@ -473,10 +509,8 @@ fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
         .map(|p| format!("{} with b_s = {}, D = {}", o.scene.display(), p.block_size, p.diameter))
         .collect();
     for path in &o.with {
-        let sets: Vec<String> = RECORDING
-            .iter()
-            .chain(&["balance.strategy=\"none\""])
-            .map(|s| s.to_string())
+        let sets: Vec<String> = recording(o)
+            .chain([String::from("balance.strategy=\"none\"")])
             .collect();
         let cfg = config::load(path, &sets)?;
         let scene = scenes::build(&cfg)?;
@@ -507,7 +541,7 @@ fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
 fn fit_and_report(
     o: &CalibrateOptions,
     c: &Campaign,
-    scenes: Vec<String>,
+    (scenes, threads): (Vec<String>, usize),
     origin: &str,
     t0: Instant,
 ) -> Result<CalibrationReport> {
@@ -525,6 +559,7 @@ fn fit_and_report(
         commit: git_commit(),
         scenes,
         samples: fluid.len(),
+        threads,
         fit_quality: BTreeMap::new(),
         note: format!(
             "{origin}: {} runs, first {WARMUP} steps of each dropped, one sample per block per step; \
@@ -581,6 +616,7 @@ fn fit_and_report(
     let noise = estimator::noise_floor(&fluid, o.interval);
     let report = CalibrationReport {
         runs: c.runs.clone(),
+        threads: prov.threads,
         samples: fluid.len(),
         never_fluid_samples: c.samples.len() - fluid.len(),
         interval: o.interval,

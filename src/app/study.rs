@@ -2,8 +2,10 @@
 //! [--steps N] [--live] [--out DIR]`: one recorded run replayed under every strategy (Table 3, figures 10
 //! and 11), and with `--live` every strategy run for real, modeled against measured.
 //!
-//! The recording run uses one process with `record_threads` threads (by default the machine's cores) and
-//! never moves a block; the counterfactual strategies are assigned to `P` processes of `T` threads each,
+//! The recording run uses one process with `record_threads` threads and never moves a block. By default
+//! it has as many as the estimator's coefficients were timed with (their provenance's `threads`, 1 for
+//! a default `blockflow calibrate`), so that estimator and measured weights describe the same memory
+//! contention; without estimator weights among the strategies, the machine's cores; the counterfactual strategies are assigned to `P` processes of `T` threads each,
 //! whatever the machine. `none` is the paper's baseline (static Hilbert split by fluid cells), `steal-global`
 //! the same assignment with any idle thread taking any ready task, and every other strategy starts from its
 //! own split by `--weights` (or the `@weights` suffix of its name, e.g. `hilbert@estimator`) and rebalances
@@ -67,7 +69,9 @@ pub struct StudyArgs {
     /// the machine fall on all of them; each live column is the median over the rounds.
     #[arg(long, default_value_t = 1)]
     pub live_rounds: usize,
-    /// Threads of the recording run (default: the machine's cores).
+    /// Threads of the recording run (default: the threads the estimator's coefficients were timed with,
+    /// their provenance's `threads`; without estimator weights among the strategies, the machine's
+    /// cores).
     #[arg(long)]
     pub record_threads: Option<usize>,
     /// Output folder.
@@ -136,7 +140,8 @@ pub struct StudyOptions {
     pub live_rounds: usize,
     /// Output folder.
     pub out: PathBuf,
-    /// Threads of the recording run (default: the machine's cores).
+    /// Threads of the recording run (`None`: those the estimator's coefficients were timed with, or
+    /// the machine's cores where no strategy weighs by the estimator).
     pub record_threads: Option<usize>,
 }
 
@@ -312,6 +317,19 @@ fn strategy_config(cfg: &Config, name: &str, processes: usize, threads: usize) -
     c
 }
 
+/// The worker threads the estimator's coefficients were timed with (provenance `threads`), where a
+/// strategy of `names` weighs blocks by the estimator (`estimator` or `corrected`); `None` otherwise.
+/// Per-block costs depend on the memory contention they were timed in, so the recording that the
+/// estimator's weights are judged against is made in the same regime.
+fn calibration_threads(cfg: &Config, names: &[String]) -> Result<Option<usize>> {
+    for name in names {
+        if let Some(c) = coefficients(&strategy_config(cfg, name, 1, 1))? {
+            return Ok(Some(c.provenance.threads));
+        }
+    }
+    Ok(None)
+}
+
 /// The counterfactuals of `names` on `processes × threads`, each starting from its own initial split.
 fn counterfactual<T: Real>(
     cfg: &Config,
@@ -407,7 +425,10 @@ fn checksums<T: Real>(sim: &Simulation<T>) -> (String, Option<String>) {
 fn study_t<T: Real>(cfg: &Config, scene: &Scene, opts: &StudyOptions) -> Result<StudyReport> {
     let steps = opts.steps.or(cfg.run.steps).unwrap_or(scene.steps);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let record_threads = opts.record_threads.unwrap_or(cores).max(1);
+    let record_threads = match opts.record_threads {
+        Some(t) => t.max(1),
+        None => calibration_threads(cfg, &opts.strategies)?.map_or(cores, |t| t.min(cores)),
+    };
     let mut rec = strategy_config(cfg, "none", 1, record_threads);
     rec.processes.pin = config::PinConfig::default();
     let mut tl = TimeLoop::<T>::from_config(&rec, scene, Recording::default())?;
@@ -419,8 +440,9 @@ fn study_t<T: Real>(cfg: &Config, scene: &Scene, opts: &StudyOptions) -> Result<
         opts.threads_per_process,
     )?;
     eprintln!(
-        "study: recording {steps} steps of {} on {record_threads} threads, replayed on {} × {}",
+        "study: recording {steps} steps of {} on {record_threads} thread{}, replayed on {} × {}",
         opts.scene.display(),
+        if record_threads == 1 { "" } else { "s" },
         opts.processes,
         opts.threads_per_process
     );
@@ -593,4 +615,43 @@ fn write(dir: &Path, r: &StudyReport) -> Result<()> {
     )?;
     crate::io::plots::balance::figure11(&dir.join("figure11.png"), &lines(|i| i.imbalance))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The recording follows the estimator's calibration regime only where a strategy weighs by the
+    /// estimator.
+    #[test]
+    fn recording_threads_follow_the_coefficients_of_estimator_strategies() {
+        let dir = std::env::temp_dir().join(format!("blockflow-study-threads-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("coefficients.toml");
+        let text = crate::estimator::coefficients::BUILT_IN_COEFFICIENTS.replacen("threads = 1\n", "threads = 3\n", 1);
+        assert_ne!(
+            text,
+            crate::estimator::coefficients::BUILT_IN_COEFFICIENTS,
+            "the built-in file names its threads"
+        );
+        std::fs::write(&path, text).unwrap();
+        let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("configs/hopper-small.toml");
+        let cfg = config::load(
+            &scene,
+            &[format!("balance.coefficients={:?}", path.display().to_string())],
+        )
+        .unwrap();
+        let names = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        assert_eq!(
+            calibration_threads(&cfg, &names(&["none", "hilbert@estimator"])).unwrap(),
+            Some(3)
+        );
+        // `corrected` (the default weights) scales the estimator's predictions.
+        assert_eq!(calibration_threads(&cfg, &names(&["metis"])).unwrap(), Some(3));
+        assert_eq!(
+            calibration_threads(&cfg, &names(&["none", "hilbert@measured", "steal-global"])).unwrap(),
+            None
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -1,8 +1,8 @@
 //! The coefficients of the workload functions (eqs. 10–14 or this engine's form, [`Model`]), their
 //! evaluation (eq. 15) and the `coefficients.toml` format.
 //!
-//! Layout of the file (every key required except `model` and `provenance.fit_quality`; unknown keys
-//! are errors):
+//! Layout of the file (every key required except `model`, `provenance.threads` and
+//! `provenance.fit_quality`; unknown keys are errors):
 //!
 //! ```toml
 //! model = "blockflow"         # or "paper" (the default when the key is missing)
@@ -14,6 +14,7 @@
 //! commit = "..."              # blockflow commit that was timed
 //! scenes = ["..."]            # calibration scenes / runs
 //! samples = 0                 # number of samples fitted
+//! threads = 1                 # workers of the timed runs, each on a core of its own (default 1)
 //! note = "..."
 //!
 //! [provenance.fit_quality]    # optional: name = number, e.g. step_in_sample, interval_held_out
@@ -44,7 +45,7 @@ pub const BUILT_IN_COEFFICIENTS: &str = include_str!("../../configs/coefficients
 
 /// Where a set of coefficients came from (section 3.5: coefficients are valid only for the machine,
 /// implementation and algorithms they were measured with).
-#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Provenance {
     /// Machine the timings were measured on.
@@ -57,11 +58,34 @@ pub struct Provenance {
     pub scenes: Vec<String>,
     /// Number of samples fitted.
     pub samples: usize,
+    /// Worker threads of the timed runs, each pinned to a core of its own: the memory contention the
+    /// costs include (1: each block timed alone on its core; a file without the key counts as 1).
+    #[serde(default = "one_thread")]
+    pub threads: usize,
     /// Fit quality measures (section 3.4), e.g. `step_in_sample`, `interval_held_out`.
     #[serde(default)]
     pub fit_quality: BTreeMap<String, f64>,
     /// Free text.
     pub note: String,
+}
+
+fn one_thread() -> usize {
+    1
+}
+
+impl Default for Provenance {
+    fn default() -> Self {
+        Provenance {
+            machine: String::new(),
+            date: String::new(),
+            commit: String::new(),
+            scenes: Vec::new(),
+            samples: 0,
+            threads: one_thread(),
+            fit_quality: BTreeMap::new(),
+            note: String::new(),
+        }
+    }
 }
 
 /// Coefficients of the five workload functions of one [`Model`] plus provenance. `parts[p][j]`
@@ -197,7 +221,7 @@ impl Coefficients {
         Ok(c)
     }
 
-    /// Finite coefficients, finite non-negative floor, finite fit-quality numbers.
+    /// Finite coefficients, finite non-negative floor, at least one thread, finite fit-quality numbers.
     fn check(&self) -> std::result::Result<(), String> {
         for (p, name) in PARTS.iter().enumerate() {
             for (v, (key, _)) in self.parts[p].iter().zip(self.model.terms(p)) {
@@ -208,6 +232,9 @@ impl Coefficients {
         }
         if !self.floor.is_finite() || self.floor < 0.0 {
             return Err(format!("floor = {}: must be a finite number ≥ 0", self.floor));
+        }
+        if self.provenance.threads == 0 {
+            return Err("provenance.threads = 0: the timed runs had at least one worker".into());
         }
         for (k, v) in &self.provenance.fit_quality {
             if !v.is_finite() {
@@ -239,6 +266,7 @@ impl Coefficients {
         let scenes: Vec<String> = p.scenes.iter().map(|x| quote(x)).collect();
         s.push_str(&format!("scenes = [{}]\n", scenes.join(", ")));
         s.push_str(&format!("samples = {}\n", p.samples));
+        s.push_str(&format!("threads = {}\n", p.threads));
         s.push_str(&format!("note = {}\n\n", quote(&p.note)));
         s.push_str("[provenance.fit_quality]\n");
         for (k, v) in &p.fit_quality {
@@ -321,6 +349,7 @@ mod tests {
                 commit: "abc123".into(),
                 scenes: vec!["bs24-d10".into(), "ünïcode \"quoted\"\n".into()],
                 samples: 1_300_000,
+                threads: 3,
                 fit_quality: fq,
                 note: String::new(),
             },
@@ -466,6 +495,11 @@ mod tests {
         assert!(m.contains("rb.a5"), "{m}");
         let m = err(&good.replacen("\"median_tot\" = ", "\"median_tot\" = nan #", 1));
         assert!(m.contains("fit_quality.median_tot"), "{m}");
+        // Files from before the key was written were timed on one worker; none is no thread count.
+        let old = Coefficients::parse(&good.replacen("threads = 3\n", "", 1), "coef.toml").unwrap();
+        assert_eq!(old.provenance.threads, 1);
+        let m = err(&good.replacen("threads = 3", "threads = 0", 1));
+        assert!(m.contains("provenance.threads"), "{m}");
         // Negative floor.
         let m = err(&good.replacen("floor = 1e-9", "floor = -1e-3", 1));
         assert!(m.contains("floor") && m.contains("≥ 0"), "{m}");
