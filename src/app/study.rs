@@ -5,7 +5,8 @@
 //! The recording run uses one process with `record_threads` threads and never moves a block. By default
 //! it has as many as the estimator's coefficients were timed with (their provenance's `threads`, 1 for
 //! a default `blockflow calibrate`), so that estimator and measured weights describe the same memory
-//! contention; without estimator weights among the strategies, the machine's cores; the counterfactual strategies are assigned to `P` processes of `T` threads each,
+//! contention; with `--live`, or without estimator weights among the strategies, the machine's cores
+//! (the live runs' regime); the counterfactual strategies are assigned to `P` processes of `T` threads each,
 //! whatever the machine. `none` is the paper's baseline (static Hilbert split by fluid cells), `steal-global`
 //! the same assignment with any idle thread taking any ready task, and every other strategy starts from its
 //! own split by `--weights` (or the `@weights` suffix of its name, e.g. `hilbert@estimator`) and rebalances
@@ -70,8 +71,8 @@ pub struct StudyArgs {
     #[arg(long, default_value_t = 1)]
     pub live_rounds: usize,
     /// Threads of the recording run (default: the threads the estimator's coefficients were timed with,
-    /// their provenance's `threads`; without estimator weights among the strategies, the machine's
-    /// cores).
+    /// their provenance's `threads`; with --live, or without estimator weights among the strategies,
+    /// the machine's cores).
     #[arg(long)]
     pub record_threads: Option<usize>,
     /// Output folder.
@@ -141,7 +142,7 @@ pub struct StudyOptions {
     /// Output folder.
     pub out: PathBuf,
     /// Threads of the recording run (`None`: those the estimator's coefficients were timed with, or
-    /// the machine's cores where no strategy weighs by the estimator).
+    /// the machine's cores with `live` or where no strategy weighs by the estimator).
     pub record_threads: Option<usize>,
 }
 
@@ -427,6 +428,8 @@ fn study_t<T: Real>(cfg: &Config, scene: &Scene, opts: &StudyOptions) -> Result<
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let record_threads = match opts.record_threads {
         Some(t) => t.max(1),
+        // Live runs use every core: the modeled times they are compared with come from the same regime.
+        None if opts.live => cores,
         None => calibration_threads(cfg, &opts.strategies)?.map_or(cores, |t| t.min(cores)),
     };
     let mut rec = strategy_config(cfg, "none", 1, record_threads);
