@@ -1,6 +1,7 @@
 //! What a sweep costs per block when its fluid runs are short or sparse: one AA step of 300 blocks of
 //! 16³ cells (f64, about 300 MB, far past L3) for several run patterns, microseconds per block and
-//! nanoseconds per cell and per run. `NB=30` (in L3) or `NB=2` (in L2) give the in-cache figures.
+//! nanoseconds per cell and per run. `NB=30` (in L3) or `NB=2` (in L2) give the in-cache figures;
+//! `PARITY=0` or `1` times the even (in-place) or the odd AA steps alone.
 //!
 //! `cargo run --release -p blockflow-kernels --example sparse_runs`
 
@@ -13,6 +14,8 @@ fn main() {
     let n = 16;
     let l = Layout::new::<f64>([n, n, n]);
     let blocks: usize = std::env::var("NB").ok().and_then(|s| s.parse().ok()).unwrap_or(300);
+    // `PARITY=0` times only the AA pattern's even steps (in place), `PARITY=1` only its odd ones.
+    let parity: Option<u64> = std::env::var("PARITY").ok().and_then(|s| s.parse().ok());
     let mut fields: Vec<PdfField<f64>> = (0..blocks).map(|b| PdfField::new(l, (b % 8) * 64)).collect();
     for f in fields.iter_mut() {
         f.data_mut().fill(1e-3);
@@ -51,6 +54,15 @@ fn main() {
         ("every other plane", runs(&|_, z| (z % 2 == 0).then_some((1, n)))),
         ("rows y <= 7 of every plane", runs(&|y, _| (y <= 7).then_some((1, n)))),
         ("rows y >= 10 of every plane", runs(&|y, _| (y >= 10).then_some((1, n)))),
+        // The same rows but one, changing from plane to plane, or every fourth plane.
+        (
+            "rows y <= 6 + z mod 2",
+            runs(&|y, z| (y <= 6 + z % 2).then_some((1, n))),
+        ),
+        (
+            "rows y <= 6 + (z / 4) mod 2",
+            runs(&|y, z| (y <= 6 + (z / 4) % 2).then_some((1, n))),
+        ),
     ];
     println!("| runs | count | cells | µs per block | ns per cell | ns per run |\n|---|---:|---:|---:|---:|---:|");
     for round in 0..2 {
@@ -59,6 +71,7 @@ fn main() {
             let steps = 20;
             let t = Instant::now();
             for step in 0..steps {
+                let step = parity.map_or(step, |q| 2 * step + q);
                 for f in fields.iter_mut() {
                     aa_step(f, step, segs, &p);
                 }

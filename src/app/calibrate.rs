@@ -234,6 +234,7 @@ impl Observer<f64> for Sampler {
                 q.scanned,
                 q.wall_lines,
                 q.tail_runs,
+                q.shifted_runs,
             ];
             let counts: Vec<String> = counts.iter().map(|x| x.to_string()).collect();
             self.csv += &format!(
@@ -810,7 +811,7 @@ fn record(plans: &[Plan]) -> Result<Campaign> {
         csv: String::from(
             "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,particle_links,\
              link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,contacts_seen,\
-             scanned,wall_lines,tail_runs,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
+             scanned,wall_lines,tail_runs,shifted_runs,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
         ),
     };
     for (r, p) in plans.iter().enumerate() {
@@ -1093,6 +1094,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
         "breaks",
         "wall_lines",
         "tail_runs",
+        "shifted_runs",
     ];
     let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
     let mut c = Campaign {
@@ -1141,6 +1143,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
             contacts_seen: v[25],
             scanned: v[26],
             tail_runs: v[34],
+            shifted_runs: v[35],
         };
         let m = PartTimes {
             lbm: v[27],

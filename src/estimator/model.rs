@@ -30,7 +30,7 @@ pub enum Model {
 }
 
 /// Most regressors of any part in any model.
-pub const MAX_TERMS: usize = 8;
+pub const MAX_TERMS: usize = 9;
 
 /// The regressor values of one part for one block and step (the first `len` entries of `v`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -80,6 +80,7 @@ const BLOCKFLOW: [Terms; 5] = [
         ("runs", "runs of fluid cells"),
         ("breaks", "runs that restart the memory streams"),
         ("tail_runs", "runs that end in a vector tail step"),
+        ("shifted_runs", "runs of planes whose runs differ from the plane before"),
         ("active", "1 if F > 0"),
         ("cells", "C if F > 0"),
         (
@@ -197,6 +198,7 @@ fn blockflow_row(part: usize, q: &Quantities) -> Row {
             q.runs,
             q.breaks,
             q.tail_runs,
+            q.shifted_runs,
             fluid,
             q.c * fluid,
             q.c * fluid * (1.0 - links),
@@ -295,11 +297,11 @@ mod tests {
         assert_eq!(m.row(1, &walled).as_slice(), &[5.0, 0.0, 0.0, 0.0, 1.0]);
         assert_eq!(
             m.row(0, &open).as_slice(),
-            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 4096.0, 0.0]
         );
         assert_eq!(
             m.row(0, &walled).as_slice(),
-            &[4096.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
+            &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
         );
         assert_eq!(Model::parse(Model::Paper.name()), Some(Model::Paper));
         assert_eq!(Model::parse("cells"), None);

@@ -2,7 +2,7 @@
 //! that the `blockflow` model of the estimator regresses on.
 
 use crate::physics::simulation::Simulation;
-use blockflow_kernels::{Real, Segment};
+use blockflow_kernels::{Layout, Real, Segment};
 
 /// Elements between the end of one fluid run and the start of the next beyond which the next run counts
 /// as a new memory stream ([`Quantities::breaks`]): two 64-byte lines of f64, four of f32.
@@ -28,6 +28,36 @@ pub fn stream_breaks(segs: &[Segment]) -> f64 {
 /// tail; full rows of a block whose edge is a multiple of `lanes` do not).
 pub fn tail_runs(segs: &[Segment], lanes: usize) -> f64 {
     segs.iter().filter(|s| s.len % lanes != 0).count() as f64
+}
+
+/// The runs of the planes (z) whose runs differ from those of the plane before (other positions within
+/// the plane or other lengths; the first plane with runs does not count). From memory, a sweep whose
+/// planes repeat one pattern of rows streams as the hardware prefetcher foresees; where a wall cuts the
+/// planes differently from one to the next, as a sloped wall does, every row of those planes costs
+/// about a third more (the `sparse_runs` example of the kernels crate).
+pub fn shifted_runs(segs: &[Segment], l: &Layout) -> f64 {
+    // A plane's runs as (position within the plane, length).
+    let (mut prev, mut cur) = (Vec::<(usize, usize)>::new(), Vec::<(usize, usize)>::new());
+    let (mut plane, mut seen, mut n) = (usize::MAX, false, 0usize);
+    let mut close = |cur: &mut Vec<(usize, usize)>, prev: &mut Vec<(usize, usize)>| {
+        if !cur.is_empty() {
+            if seen && cur != prev {
+                n += cur.len();
+            }
+            seen = true;
+            std::mem::swap(prev, cur);
+            cur.clear();
+        }
+    };
+    for s in segs {
+        if s.start / l.sxy != plane {
+            close(&mut cur, &mut prev);
+            plane = s.start / l.sxy;
+        }
+        cur.push((s.start % l.sxy, s.len));
+    }
+    close(&mut cur, &mut prev);
+    n as f64
 }
 
 /// Table 1 quantities of one block in one step, plus what this engine's tasks did in it (all f64, so
@@ -100,6 +130,9 @@ pub struct Quantities {
     /// Runs whose last cells the kernel updates in a vector tail step ([`tail_runs`]).
     #[serde(default)]
     pub tail_runs: f64,
+    /// Runs of planes whose runs differ from the plane before's ([`shifted_runs`]).
+    #[serde(default)]
+    pub shifted_runs: f64,
 }
 
 impl Quantities {
@@ -124,6 +157,7 @@ impl Quantities {
                 q.runs = pc.segments.len() as f64;
                 q.breaks = stream_breaks(&pc.segments);
                 q.tail_runs = tail_runs(&pc.segments, T::LANES);
+                q.shifted_runs = shifted_runs(&pc.segments, &blk.layout);
                 q.link_cells = pc.link_cells.len() as f64;
                 q.particle_links = pc.link_cells.iter().map(|l| l.dirs.count_ones() as f64).sum();
                 // The mapping ran in the last step only where the block was active (else the overlay
@@ -143,6 +177,7 @@ impl Quantities {
                 q.runs = blk.segments.len() as f64;
                 q.breaks = stream_breaks(&blk.segments);
                 q.tail_runs = tail_runs(&blk.segments, T::LANES);
+                q.shifted_runs = shifted_runs(&blk.segments, &blk.layout);
             }
         }
         if let Some(p) = sim.particles.as_ref().filter(|p| p.active[b]) {
@@ -231,5 +266,37 @@ mod tests {
         assert_eq!(tail_runs(&[full, cut, late, whole], 8), 2.0);
         assert_eq!(tail_runs(&[seg(36, 4)], 8), 1.0);
         assert_eq!(tail_runs(&[], 4), 0.0);
+    }
+
+    /// On a 16³ block: planes that repeat the rows of the plane before count nothing, whole or cut the
+    /// same; a plane with one row more (a sloped wall), a row moved along x or cut shorter counts all
+    /// its runs; an empty plane between two equal ones does not break the repetition.
+    #[test]
+    fn shifted_runs_count_the_runs_of_planes_unlike_the_one_before() {
+        let l = Layout::new::<f64>([16, 16, 16]);
+        let plane = |z: usize, rows: &[(usize, usize, usize)]| -> Vec<Segment> {
+            rows.iter().map(|&(y, x, n)| seg(l.idx(x, y, z), n)).collect()
+        };
+        let rows = |k: usize| -> Vec<(usize, usize, usize)> { (1..=k).map(|y| (y, 1, 16)).collect() };
+        let block = |planes: &[Vec<(usize, usize, usize)>]| -> Vec<Segment> {
+            planes.iter().enumerate().flat_map(|(z, r)| plane(z + 1, r)).collect()
+        };
+        assert_eq!(shifted_runs(&[], &l), 0.0);
+        assert_eq!(shifted_runs(&block(&vec![rows(16); 16]), &l), 0.0);
+        assert_eq!(shifted_runs(&block(&vec![rows(7); 16]), &l), 0.0);
+        // A sloped wall: planes of 3, 4, 5 rows; the first plane does not count.
+        assert_eq!(shifted_runs(&block(&[rows(3), rows(4), rows(5)]), &l), 9.0);
+        // Alternating 6 and 7 rows: every plane but the first.
+        let alt: Vec<_> = (0..4).map(|z| rows(6 + z % 2)).collect();
+        assert_eq!(shifted_runs(&block(&alt), &l), 7.0 + 6.0 + 7.0);
+        // The same count of rows, one moved along x, or cut short.
+        let mut moved = rows(2);
+        moved[1].1 = 2;
+        assert_eq!(shifted_runs(&block(&[rows(2), moved.clone(), moved]), &l), 2.0);
+        let mut short = rows(2);
+        short[0].2 = 15;
+        assert_eq!(shifted_runs(&block(&[rows(2), short]), &l), 2.0);
+        let gap = [plane(1, &rows(3)), plane(3, &rows(3))].concat();
+        assert_eq!(shifted_runs(&gap, &l), 0.0);
     }
 }
