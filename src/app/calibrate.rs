@@ -155,7 +155,7 @@ pub struct CalibrateOptions {
     pub block_sizes: Vec<usize>,
     /// Sphere diameters D (cells); empty: the preset's.
     pub diameters: Vec<f64>,
-    /// A short campaign for tests (about two minutes).
+    /// A short campaign for tests (seconds).
     pub quick: bool,
     /// The paper's sizes (b_s = 24, 32, 48, 64; D = 10, 20; 2.5 T): for big machines.
     pub paper: bool,
