@@ -422,19 +422,15 @@ fn today() -> String {
         .unwrap_or_default()
 }
 
-/// The worker threads of the campaign that wrote `samples`, from the `calibration.json` in the same
-/// folder; `None` where there is none or it does not say.
-fn recorded_threads(samples: &Path) -> Option<usize> {
+/// The `calibration.json` of the campaign that wrote `samples` (in the same folder), if it is there.
+fn recorded_report(samples: &Path) -> Option<serde_json::Value> {
     let text = std::fs::read_to_string(samples.with_file_name("calibration.json")).ok()?;
-    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
-    json["threads"].as_u64().map(|t| t as usize)
+    serde_json::from_str(&text).ok()
 }
 
-/// The scenes of the runs of the campaign that wrote `samples` (in run order), from the
-/// `calibration.json` in the same folder; `None` where there is none or it names no runs.
-fn recorded_scenes(samples: &Path) -> Option<Vec<String>> {
-    let text = std::fs::read_to_string(samples.with_file_name("calibration.json")).ok()?;
-    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+/// The scenes of the runs of the campaign whose report is `json` (in run order); `None` where it names
+/// no runs.
+fn recorded_scenes(json: &serde_json::Value) -> Option<Vec<String>> {
     let names: Option<Vec<String>> = json["by_run"]
         .as_array()?
         .iter()
@@ -453,7 +449,8 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
             let c = read_samples(path)?;
             // samples.csv does not name the scene a run recorded (it may be a --with scene); the
             // campaign's calibration.json beside it does.
-            let scenes = match recorded_scenes(path) {
+            let report = recorded_report(path);
+            let scenes = match report.as_ref().and_then(recorded_scenes) {
                 Some(names) if names.len() == c.runs.len() => names,
                 _ => c
                     .runs
@@ -470,7 +467,7 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
                     .collect(),
             };
             // Campaigns from before `--threads` recorded on one worker.
-            let threads = recorded_threads(path).unwrap_or(1);
+            let threads = report.and_then(|j| j["threads"].as_u64()).map_or(1, |t| t as usize);
             (c, scenes, format!("refit of {}", path.display()), threads)
         }
         None => {
@@ -487,7 +484,7 @@ pub fn run(o: &CalibrateOptions) -> Result<CalibrationReport> {
         let path = o.out.join("samples.csv");
         std::fs::write(&path, &c.csv).map_err(|e| io_err(&path, e))?;
     }
-    fit_and_report(o, &c, (scenes, threads), &origin, t0)
+    fit_and_report(o, &c, scenes, threads, &origin, t0)
 }
 
 /// Runs the campaign of `o`; returns it and a description of every run.
@@ -542,7 +539,8 @@ fn campaign(o: &CalibrateOptions) -> Result<(Campaign, Vec<String>)> {
 fn fit_and_report(
     o: &CalibrateOptions,
     c: &Campaign,
-    (scenes, threads): (Vec<String>, usize),
+    scenes: Vec<String>,
+    threads: usize,
     origin: &str,
     t0: Instant,
 ) -> Result<CalibrationReport> {
