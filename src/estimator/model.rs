@@ -10,7 +10,7 @@
 //!
 //! | part | paper | `blockflow` |
 //! |---|---|---|
-//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams, e.g. rows a wall cuts short), tail runs (runs whose last len mod lanes cells the kernel updates in one vector tail step), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
+//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams: more than six rows past the run before, e.g. where a sloping wall moves the first fluid row of a plane), tail runs (runs whose last len mod lanes cells the kernel updates in one vector tail step), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
 //! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [links > 0] (a block without links has no boundary pass) |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |

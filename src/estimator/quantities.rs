@@ -4,17 +4,22 @@
 use crate::physics::simulation::Simulation;
 use blockflow_kernels::{Layout, Real, Segment};
 
-/// Elements between the end of one fluid run and the start of the next beyond which the next run counts
-/// as a new memory stream ([`Quantities::breaks`]): two 64-byte lines of f64, four of f32.
-pub const STREAM_GAP: usize = 16;
+/// Row pitches (elements [`Layout::sx`]) between the end of one fluid run and the start of the next beyond
+/// which the next run counts as a new memory stream ([`Quantities::breaks`]). Within a plane the rows of a
+/// block, however short a wall or a sphere cuts them, lie closer than that, and so do the last row of
+/// one plane and the first of the next past the two ghost rows: the hardware prefetcher streams across
+/// such gaps. A plane whose first fluid row lies several rows on (a wall sloping across y and z) does
+/// restart the 19 arrays' streams, and it costs so whatever the rows' length (`sparse_runs` example of
+/// the kernels crate: 7 full rows in each of 16 planes cost about 40 % more than 7 full planes).
+pub const STREAM_GAP_ROWS: usize = 6;
 
-/// The runs of `segs` (in memory order) that start more than [`STREAM_GAP`] elements after the end of
-/// the run before them; the first run counts as one.
-pub fn stream_breaks(segs: &[Segment]) -> f64 {
+/// The runs of `segs` (in memory order) that start more than `gap` elements after the end of the run
+/// before them; the first run counts as one.
+pub fn stream_breaks(segs: &[Segment], gap: usize) -> f64 {
     let mut end: Option<usize> = None;
     let mut n = 0usize;
     for s in segs {
-        if end.is_none_or(|e| s.start > e + STREAM_GAP) {
+        if end.is_none_or(|e| s.start > e + gap) {
             n += 1;
         }
         end = Some(s.start + s.len);
@@ -81,9 +86,9 @@ pub struct Quantities {
     /// Runs of fluid cells the fluid kernel updates (each run costs a row set-up).
     #[serde(default)]
     pub runs: f64,
-    /// Runs that start more than [`STREAM_GAP`] elements past the end of the run before them: each one
-    /// restarts the memory streams of the 19 arrays instead of continuing them (a row cut short by a
-    /// wall, not one cut by a sphere).
+    /// Runs that start more than [`STREAM_GAP_ROWS`] row pitches past the end of the run before them
+    /// ([`stream_breaks`]): each one restarts the memory streams of the 19 arrays instead of continuing
+    /// them (the first row of a plane that a sloping wall cuts, not a row cut by a sphere).
     #[serde(default)]
     pub breaks: f64,
     /// Bounce-back links at walls (resting and moving).
@@ -155,7 +160,7 @@ impl Quantities {
                 q.f = pc.fluid_cells as f64;
                 q.nb = pc.near_boundary_cells as f64;
                 q.runs = pc.segments.len() as f64;
-                q.breaks = stream_breaks(&pc.segments);
+                q.breaks = stream_breaks(&pc.segments, STREAM_GAP_ROWS * blk.layout.sx);
                 q.tail_runs = tail_runs(&pc.segments, T::LANES);
                 q.shifted_runs = shifted_runs(&pc.segments, &blk.layout);
                 q.link_cells = pc.link_cells.len() as f64;
@@ -175,7 +180,7 @@ impl Quantities {
                 q.f = blk.fluid_cells as f64;
                 q.nb = blk.near_boundary_cells as f64;
                 q.runs = blk.segments.len() as f64;
-                q.breaks = stream_breaks(&blk.segments);
+                q.breaks = stream_breaks(&blk.segments, STREAM_GAP_ROWS * blk.layout.sx);
                 q.tail_runs = tail_runs(&blk.segments, T::LANES);
                 q.shifted_runs = shifted_runs(&blk.segments, &blk.layout);
             }
@@ -242,18 +247,28 @@ mod tests {
         Segment { start, len }
     }
 
-    /// Full rows of a 32³ block (row pitch 34: two ghost cells between rows) continue one stream; a
-    /// sphere's chord of up to 16 cells does not break it; a run 30 cells further on (a row that a wall
-    /// cuts to 4 cells) starts a new one.
+    /// Rows of a 32³ block (row pitch 36, plane pitch 36 · 34), full or cut short by a wall across x, and
+    /// the planes after them past the two ghost rows continue one stream; a plane whose runs start seven
+    /// rows further on starts a new one, and a gap of exactly six rows does not.
     #[test]
     fn stream_breaks_count_runs_that_restart_the_streams() {
-        assert_eq!(stream_breaks(&[]), 0.0);
-        let rows: Vec<Segment> = (0..32).map(|y| seg(35 + 34 * y, 32)).collect();
-        assert_eq!(stream_breaks(&rows), 1.0);
-        assert_eq!(stream_breaks(&[seg(35, 10), seg(35 + 10 + STREAM_GAP, 6)]), 1.0);
-        assert_eq!(stream_breaks(&[seg(35, 10), seg(35 + 10 + STREAM_GAP + 1, 6)]), 2.0);
-        let cut: Vec<Segment> = (0..20).map(|y| seg(35 + 34 * y, 4)).collect();
-        assert_eq!(stream_breaks(&cut), 20.0);
+        let (sx, sxy) = (36, 36 * 34);
+        let gap = STREAM_GAP_ROWS * sx;
+        assert_eq!(stream_breaks(&[], gap), 0.0);
+        let full: Vec<Segment> = (0..32)
+            .flat_map(|z| (0..32).map(move |y| seg(39 + sx * y + sxy * z, 32)))
+            .collect();
+        assert_eq!(stream_breaks(&full, gap), 1.0);
+        let cut: Vec<Segment> = (0..20).map(|y| seg(39 + sx * y, 4)).collect();
+        assert_eq!(stream_breaks(&cut, gap), 1.0);
+        assert_eq!(stream_breaks(&[seg(39, 10), seg(39 + 10 + gap, 6)], gap), 1.0);
+        assert_eq!(stream_breaks(&[seg(39, 10), seg(39 + 10 + gap + 1, 6)], gap), 2.0);
+        // A wall sloping across y and z: plane z holds rows y >= 8 + z of 32 cells (rows 8.. of plane 0,
+        // rows 9.. of plane 1, ...): between planes lie the rows below the wall and the ghost rows.
+        let sloped: Vec<Segment> = (0..4)
+            .flat_map(|z| (8 + z..32).map(move |y| seg(39 + sx * y + sxy * z, 32)))
+            .collect();
+        assert_eq!(stream_breaks(&sloped, gap), 4.0);
     }
 
     /// A full row of 32 cells is all full vector steps of 4 (or 8); rows cut to 13 and 10 cells end in a
