@@ -33,6 +33,9 @@ pub struct Balancer {
     pub steps: u64,
     /// The block weights of the last balancing step.
     last: Vec<f64>,
+    /// Every block's estimate at the last balancing step (`estimator` weights: the start of the trend
+    /// [`crate::estimator::forecast`] extends).
+    previous_estimate: Vec<f64>,
 }
 
 impl Balancer {
@@ -58,6 +61,7 @@ impl Balancer {
             seconds: 0.0,
             steps: 0,
             last: Vec::new(),
+            previous_estimate: Vec::new(),
         }
     }
 
@@ -108,7 +112,12 @@ impl Balancer {
         match self.weights {
             Weights::Cells => weights::cells(s),
             Weights::Uniform => vec![1.0; self.graph.len()],
-            Weights::Estimator => self.estimate(s),
+            Weights::Estimator => {
+                let e = self.estimate(s);
+                let w = crate::estimator::forecast(&e, &self.previous_estimate);
+                self.previous_estimate = e;
+                w
+            }
             Weights::Measured => crate::estimator::measured(block_load),
             Weights::Corrected => {
                 self.corrector.update(&self.predicted, block_load);
@@ -136,6 +145,18 @@ impl Balancer {
     /// Restores the interval's prediction from a checkpoint (see [`Balancer::predicted`]).
     pub fn set_predicted(&mut self, predicted: Vec<f64>) {
         self.predicted = predicted;
+    }
+
+    /// Every block's estimate at the last balancing step under `estimator` weights (empty before the
+    /// first; checkpoints store it).
+    pub fn previous_estimate(&self) -> &[f64] {
+        &self.previous_estimate
+    }
+
+    /// Restores the estimate of the last balancing step from a checkpoint (see
+    /// [`Balancer::previous_estimate`]).
+    pub fn set_previous_estimate(&mut self, e: Vec<f64>) {
+        self.previous_estimate = e;
     }
 
     /// The block weights of the last balancing step (empty before the first).

@@ -46,7 +46,8 @@ pub struct BalanceConfig {
     pub interval: u64,
     /// Block weight: `"corrected"` (default: eq. 15 with `balance.coefficients`, times the block's
     /// smoothed measured/predicted ratio, the predictor–corrector of section 3.5), `"estimator"` (eq. 15
-    /// alone, the paper's method), `"cells"` (fluid cells), `"measured"` (the block's m_tot over the last
+    /// alone, the paper's method, forecast to the coming interval's middle by half its change since the
+    /// balancing step before: `estimator::forecast`), `"cells"` (fluid cells), `"measured"` (the block's m_tot over the last
     /// interval) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which
     /// never moves a block) the blocks are redistributed with these weights at the end of every interval.
     #[serde(default)]
@@ -103,7 +104,9 @@ pub enum Weights {
     /// Fluid cells (cells when the fluid is off).
     Cells,
     /// The workload estimate of eq. (15) from the block's Table 1 quantities (the paper's method, with
-    /// the built-in coefficients where the working folder has none).
+    /// the built-in coefficients where the working folder has none), forecast to the middle of the
+    /// coming interval from its change since the balancing step before (`estimator::forecast`; the plain
+    /// estimate for the initial assignment and the first balancing step).
     Estimator,
     /// The block's own measured m_tot over the last interval (cells for the initial assignment).
     Measured,

@@ -33,7 +33,7 @@ pub use quantities::Quantities;
 pub use stats::{
     evaluate, mad, median, noise_floor, score, BlockKind, Evaluation, Hits, NoiseFloor, PartStats, Scores,
 };
-pub use weights::{measured, Corrector};
+pub use weights::{forecast, measured, Corrector};
 
 use crate::physics::parts::{ByPart, Part};
 

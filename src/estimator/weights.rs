@@ -11,6 +11,24 @@
 //!   block look arbitrarily heavy or light;
 //! - the weight for the next distribution is r_b times the block's current estimate.
 
+/// The estimate forecast to the middle of the coming balancing interval: each block's estimate now, e,
+/// plus half its change since the balancing step before, e₋ (one interval earlier):
+/// w = max(e + ½ (e − e₋), ½ e). The balancer weighs a block by what it will cost *over* the coming
+/// interval, and bodies settling through the domain move load from block to block steadily, so the load
+/// at the interval's middle, linear in time, is its mean. The floor keeps a block whose load fell (a body
+/// left) from being forecast below half its estimate, where a trend that ended would overshoot most.
+/// Without an estimate one interval earlier (`before` empty or of another length: the first balancing
+/// step, or a restart from a checkpoint without it) the weights are the estimate itself.
+pub fn forecast(now: &[f64], before: &[f64]) -> Vec<f64> {
+    if before.len() != now.len() {
+        return now.to_vec();
+    }
+    now.iter()
+        .zip(before)
+        .map(|(&e, &p)| (e + 0.5 * (e - p)).max(0.5 * e))
+        .collect()
+}
+
 /// The predictor–corrector state of every block.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Corrector {
@@ -89,6 +107,20 @@ mod tests {
             c.weights(&[4.0, 4.0, 4.0]),
             vec![4.0 * c.ratio[0], 4.0 * c.ratio[1], 4.0]
         );
+    }
+
+    /// A load rising linearly in time is forecast exactly to its value half an interval ahead, which
+    /// is its mean over the coming interval; a falling one as well, down to half the estimate; without
+    /// the estimate one interval earlier the forecast is the estimate.
+    #[test]
+    fn forecast_extends_a_linear_trend_to_the_interval_middle() {
+        // Loads 4 + t (rising), 8 − t (falling) and 10 − 8t (falling fast), estimates at t = 0 and 1.
+        let before = [4.0, 8.0, 10.0];
+        let now = [5.0, 7.0, 2.0];
+        // Means over t in [1, 2]: 5.5 and 6.5; the third would be −2, floored at 1.
+        assert_eq!(forecast(&now, &before), vec![5.5, 6.5, 1.0]);
+        assert_eq!(forecast(&now, &[]), now.to_vec());
+        assert_eq!(forecast(&now, &[1.0]), now.to_vec());
     }
 
     #[test]

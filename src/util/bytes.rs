@@ -95,6 +95,10 @@ impl<'a> Reader<'a> {
     pub fn pos(&self) -> usize {
         self.pos
     }
+    /// Whether every byte has been read (an optional field at the end is absent).
+    pub fn at_end(&self) -> bool {
+        self.pos == self.b.len()
+    }
     /// An error of this section: `section <name>: <what>`.
     pub fn bad(&self, what: impl fmt::Display) -> ReadError {
         ReadError(format!("section {}: {what}", self.section))
