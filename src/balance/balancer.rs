@@ -164,3 +164,54 @@ impl Balancer {
         &self.last
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::balance::block_graph::closed_domain;
+    use crate::config::Strategy;
+    use crate::estimator::{Model, Provenance, Quantities};
+
+    /// `estimator` weights at successive balancing steps: the plain estimate at the first, then each
+    /// block's estimate extended by half its change since the step before (a load rising from 1 to 1.5
+    /// weighs 1.75, one falling from 2 to 0.5 is held at half its estimate, 0.25).
+    #[test]
+    fn estimator_weights_extend_the_change_since_the_balancing_step_before() {
+        let mut c = Coefficients::zeros(Model::Paper, Provenance::default());
+        c.parts[0] = vec![0.0, 1e-3, 0.0]; // LBM = 1e-3 F
+        let cfg = BalanceConfig {
+            strategy: Strategy::Hilbert,
+            ..Default::default()
+        };
+        let d = closed_domain([2, 1, 1]);
+        let mut b = Balancer::new(Weights::Estimator, crate::balance::strategy(&cfg), 2, Some(c), &d);
+        let state = |f: [f64; 2]| BlockState {
+            quantities: f
+                .iter()
+                .map(|&f| Quantities {
+                    c: 4096.0,
+                    f,
+                    ..Default::default()
+                })
+                .collect(),
+            dry: false,
+        };
+        let load = [0.0, 0.0];
+        assert_eq!(b.block_weights(&state([1000.0, 2000.0]), &load), vec![1.0, 2.0]);
+        assert_eq!(b.previous_estimate(), &[1.0, 2.0]);
+        assert_eq!(b.block_weights(&state([1500.0, 500.0]), &load), vec![1.75, 0.25]);
+        // A restored balancer continues the same trend.
+        let mut r = Balancer::new(
+            Weights::Estimator,
+            crate::balance::strategy(&cfg),
+            2,
+            b.coefficients.clone(),
+            &d,
+        );
+        r.set_previous_estimate(b.previous_estimate().to_vec());
+        assert_eq!(
+            r.block_weights(&state([2000.0, 500.0]), &load),
+            b.block_weights(&state([2000.0, 500.0]), &load)
+        );
+    }
+}
