@@ -135,6 +135,7 @@ const GENERIC: &[(&str, Ty)] = &[
     ),
     ("balance.interval", U(1, 3)),
     ("balance.weights", E(&["cells", "estimator", "measured", "corrected"])),
+    ("balance.forecast", B),
     ("balance.coefficients", Path),
     ("balance.split", E(&["greedy", "optimal"])),
     ("balance.flow_iterations", U(1, 30)),

@@ -19,6 +19,8 @@ pub struct Balancer {
     pub graph: BlockGraph,
     /// Virtual processes.
     pub processes: usize,
+    /// Whether `estimator` weights are forecast ([`crate::estimator::forecast`]; `balance.forecast`).
+    pub forecast: bool,
     /// Estimator coefficients (for `estimator` and `corrected`).
     pub coefficients: Option<Coefficients>,
     /// Predictor–corrector state (for `corrected`).
@@ -39,7 +41,8 @@ pub struct Balancer {
 }
 
 impl Balancer {
-    /// A balancer of the blocks of `domain` with the distribution `strategy`.
+    /// A balancer of the blocks of `domain` with the distribution `strategy` (`estimator` weights
+    /// forecast).
     pub fn new(
         weights: Weights,
         strategy: Box<dyn Distribute>,
@@ -51,6 +54,7 @@ impl Balancer {
         let blocks = graph.len();
         Balancer {
             weights,
+            forecast: true,
             strategy,
             graph,
             processes,
@@ -73,8 +77,10 @@ impl Balancer {
         coefficients: Option<Coefficients>,
         domain: &crate::physics::domain::DomainSpec,
     ) -> Option<Balancer> {
-        (cfg.strategy != crate::config::Strategy::None)
-            .then(|| Balancer::new(cfg.weights, super::strategy(cfg), processes, coefficients, domain))
+        (cfg.strategy != crate::config::Strategy::None).then(|| Balancer {
+            forecast: cfg.forecast,
+            ..Balancer::new(cfg.weights, super::strategy(cfg), processes, coefficients, domain)
+        })
     }
 
     fn estimate(&self, s: &BlockState) -> Vec<f64> {
@@ -114,7 +120,11 @@ impl Balancer {
             Weights::Uniform => vec![1.0; self.graph.len()],
             Weights::Estimator => {
                 let e = self.estimate(s);
-                let w = crate::estimator::forecast(&e, &self.previous_estimate);
+                let w = if self.forecast {
+                    crate::estimator::forecast(&e, &self.previous_estimate)
+                } else {
+                    e.clone()
+                };
                 self.previous_estimate = e;
                 w
             }
@@ -200,6 +210,19 @@ mod tests {
         assert_eq!(b.block_weights(&state([1000.0, 2000.0]), &load), vec![1.0, 2.0]);
         assert_eq!(b.previous_estimate(), &[1.0, 2.0]);
         assert_eq!(b.block_weights(&state([1500.0, 500.0]), &load), vec![1.75, 0.25]);
+        // Without the forecast (the paper's weights): the estimate itself.
+        let mut plain = Balancer {
+            forecast: false,
+            ..Balancer::new(
+                Weights::Estimator,
+                crate::balance::strategy(&cfg),
+                2,
+                b.coefficients.clone(),
+                &d,
+            )
+        };
+        plain.block_weights(&state([1000.0, 2000.0]), &load);
+        assert_eq!(plain.block_weights(&state([1500.0, 500.0]), &load), vec![1.5, 0.5]);
         // A restored balancer continues the same trend.
         let mut r = Balancer::new(
             Weights::Estimator,

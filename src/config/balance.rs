@@ -46,12 +46,17 @@ pub struct BalanceConfig {
     pub interval: u64,
     /// Block weight: `"corrected"` (default: eq. 15 with `balance.coefficients`, times the block's
     /// smoothed measured/predicted ratio, the predictor–corrector of section 3.5), `"estimator"` (eq. 15
-    /// alone, the paper's method, forecast to the coming interval's middle by half its change since the
-    /// balancing step before: `estimator::forecast`), `"cells"` (fluid cells), `"measured"` (the block's m_tot over the last
+    /// alone, the paper's method, by default forecast to the coming interval's middle by half its change
+    /// since the balancing step before: `balance.forecast`), `"cells"` (fluid cells), `"measured"` (the block's m_tot over the last
     /// interval) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which
     /// never moves a block) the blocks are redistributed with these weights at the end of every interval.
     #[serde(default)]
     pub weights: Weights,
+    /// `weights = "estimator"`: forecast each block's estimate to the middle of the coming interval from
+    /// its change since the balancing step before (`estimator::forecast`; default true), or weigh by
+    /// the estimate at the balancing step alone, as the paper does (false).
+    #[serde(default = "d_forecast")]
+    pub forecast: bool,
     /// Coefficients file of the estimator (written by `blockflow calibrate`); used with
     /// `weights = "estimator"` and `"corrected"`.
     #[serde(default = "d_coefficients")]
@@ -104,9 +109,9 @@ pub enum Weights {
     /// Fluid cells (cells when the fluid is off).
     Cells,
     /// The workload estimate of eq. (15) from the block's Table 1 quantities (the paper's method, with
-    /// the built-in coefficients where the working folder has none), forecast to the middle of the
-    /// coming interval from its change since the balancing step before (`estimator::forecast`; the plain
-    /// estimate for the initial assignment and the first balancing step).
+    /// the built-in coefficients where the working folder has none), by default forecast to the middle
+    /// of the coming interval from its change since the balancing step before (`balance.forecast`; the
+    /// plain estimate for the initial assignment and the first balancing step).
     Estimator,
     /// The block's own measured m_tot over the last interval (cells for the initial assignment).
     Measured,
@@ -125,6 +130,10 @@ pub const DEFAULT_COEFFICIENTS: &str = "configs/coefficients.toml";
 
 fn d_coefficients() -> String {
     DEFAULT_COEFFICIENTS.to_string()
+}
+
+fn d_forecast() -> bool {
+    true
 }
 
 fn d_interval() -> u64 {
@@ -157,6 +166,7 @@ impl Default for BalanceConfig {
             strategy: Strategy::None,
             interval: d_interval(),
             weights: Weights::Corrected,
+            forecast: d_forecast(),
             coefficients: d_coefficients(),
             split: SplitKind::Greedy,
             flow_iterations: d_flow_iterations(),
