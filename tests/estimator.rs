@@ -236,6 +236,7 @@ fn calibrate_quick_end_to_end_and_run_loads_the_file() {
             "interval_in_sample",
             "interval_held_out",
             "interval_predictive",
+            "interval_predictive_plain",
         ] {
             let v = json["models"][model]["share_within_10pct"][k].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&v), "{model} {k} = {v}");

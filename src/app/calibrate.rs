@@ -658,8 +658,9 @@ struct Plan {
 pub struct ModelReport {
     /// Shares within 10 %: `step_in_sample` (the paper's statistic), `step_held_out`,
     /// `interval_in_sample`, `interval_held_out` (block shares of each interval's load,
-    /// leave-one-run-out), `interval_predictive` (held out, predicted at the interval's start) and
-    /// `interval_predictive_in_sample`.
+    /// leave-one-run-out), `interval_predictive` (held out, predicted at the interval's start as
+    /// `estimator` weights are: forecast), `interval_predictive_plain` (the same with the estimate at the
+    /// start itself, the paper's weights) and `interval_predictive_in_sample`.
     pub share_within_10pct: BTreeMap<String, f64>,
     /// Median of E_X per part (and `total`), in-sample.
     pub median: BTreeMap<String, f64>,
@@ -706,6 +707,7 @@ impl ModelReport {
         share.insert("interval_in_sample".to_string(), in_sample.interval.share());
         share.insert("interval_held_out".to_string(), held.interval.share());
         share.insert("interval_predictive".to_string(), held.predictive.share());
+        share.insert("interval_predictive_plain".to_string(), held.predictive_plain.share());
         share.insert(
             "interval_predictive_in_sample".to_string(),
             in_sample.predictive.share(),
@@ -939,6 +941,7 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         "interval_in_sample",
         "interval_held_out",
         "interval_predictive",
+        "interval_predictive_plain",
     ];
     s += "| model |";
     for k in keys {
@@ -962,7 +965,7 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         s += "\n";
     }
     s += &format!(
-        "| noise floor | {} | | | {} | |\n",
+        "| noise floor | {} | | | {} | | |\n",
         pct(r.noise_floor.step),
         pct(r.noise_floor.interval)
     );

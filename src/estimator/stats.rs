@@ -129,6 +129,9 @@ pub struct Scores {
     /// averaged over recent steps: [`Quantities::for_weights`]; forecast from the same prediction one
     /// interval earlier: [`forecast`]), against the loads measured over it.
     pub predictive: Hits,
+    /// As `predictive` with the estimate at the interval's start itself, not forecast: the paper's
+    /// weights (`balance.forecast = false`).
+    pub predictive_plain: Hits,
     /// `interval` split by the kind of block ([`BlockKind`], indexed by [`BlockKind::index`]): where in
     /// a scene the misses lie.
     pub interval_by_kind: [Hits; 3],
@@ -142,6 +145,7 @@ impl Scores {
         self.step.add(&o.step);
         self.interval.add(&o.interval);
         self.predictive.add(&o.predictive);
+        self.predictive_plain.add(&o.predictive_plain);
         for (a, b) in self.interval_by_kind.iter_mut().zip(&o.interval_by_kind) {
             a.add(b);
         }
@@ -292,8 +296,9 @@ pub fn score(c: &Coefficients, samples: &[Sample], interval: u64) -> Scores {
             } else {
                 now.clone()
             };
-            before = (blocks.clone(), now);
             let (sp, sm, sw) = (p.iter().sum::<f64>(), m.iter().sum::<f64>(), w.iter().sum::<f64>());
+            let sn = now.iter().sum::<f64>();
+            before = (blocks.clone(), now.clone());
             if !(sm > 0.0 && sm.is_finite()) {
                 continue;
             }
@@ -308,6 +313,12 @@ pub fn score(c: &Coefficients, samples: &[Sample], interval: u64) -> Scores {
                 let e = if sw > 0.0 { (w[i] / sw - ms) / ms } else { f64::INFINITY };
                 sc.predictive.count(e);
                 sc.predictive_by_kind[kind[i].index()].count(e);
+                let e = if sn > 0.0 {
+                    (now[i] / sn - ms) / ms
+                } else {
+                    f64::INFINITY
+                };
+                sc.predictive_plain.count(e);
             }
         }
     }
@@ -692,6 +703,8 @@ mod tests {
         // 13.0 (the rise from 0 overshoots: shares 0.43 and 0.57 of 0.5, both miss), step 40
         // 9.29 + 0.30 = 9.59 (shares within 2.1 %).
         assert_eq!(sc.predictive, Hits { within: 2, total: 6 });
+        // The estimates themselves (the paper's weights): step 0 misses, steps 20 and 40 are within 10 %.
+        assert_eq!(sc.predictive_plain, Hits { within: 4, total: 6 });
     }
 
     /// Blocks with the same quantities throughout an interval are compared with their group's median
