@@ -194,7 +194,16 @@ mod tests {
             ..Default::default()
         };
         let d = closed_domain([2, 1, 1]);
-        let mut b = Balancer::new(Weights::Estimator, crate::balance::strategy(&cfg), 2, Some(c), &d);
+        let new = || {
+            Balancer::new(
+                Weights::Estimator,
+                crate::balance::strategy(&cfg),
+                2,
+                Some(c.clone()),
+                &d,
+            )
+        };
+        let mut b = new();
         let state = |f: [f64; 2]| BlockState {
             quantities: f
                 .iter()
@@ -213,24 +222,12 @@ mod tests {
         // Without the forecast (the paper's weights): the estimate itself.
         let mut plain = Balancer {
             forecast: false,
-            ..Balancer::new(
-                Weights::Estimator,
-                crate::balance::strategy(&cfg),
-                2,
-                b.coefficients.clone(),
-                &d,
-            )
+            ..new()
         };
         plain.block_weights(&state([1000.0, 2000.0]), &load);
         assert_eq!(plain.block_weights(&state([1500.0, 500.0]), &load), vec![1.5, 0.5]);
         // A restored balancer continues the same trend.
-        let mut r = Balancer::new(
-            Weights::Estimator,
-            crate::balance::strategy(&cfg),
-            2,
-            b.coefficients.clone(),
-            &d,
-        );
+        let mut r = new();
         r.set_previous_estimate(b.previous_estimate().to_vec());
         assert_eq!(
             r.block_weights(&state([2000.0, 500.0]), &load),

@@ -34,8 +34,9 @@
 //! - `balance` (runs with a balancer): strategy and weights names (u8 length + ASCII each), balancing steps
 //!   u64, blocks migrated u64, balancing seconds f64, corrector α f64 and clamp f64, u64 n and n ratios f64,
 //!   u64 m and m predictions f64 (the interval under way), u64 k and k estimates f64 of the last
-//!   balancing step (absent in files written before they were stored: a reader takes none). The owners are not stored: they never change
-//!   a number, and a restart on another process count assigns the blocks afresh.
+//!   balancing step (absent in files written before they were stored: a reader takes none). The owners
+//!   are not stored: they never change a number, and a restart on another process count assigns the
+//!   blocks afresh.
 //!
 //! Not stored: the ghost layers and the other PDF field (see [`crate::serialise`]), `Particles::active`
 //! (recomputed before every graph run), the time series and interval measurements of the first part

@@ -47,8 +47,8 @@ pub struct BalanceConfig {
     /// Block weight: `"corrected"` (default: eq. 15 with `balance.coefficients`, times the block's
     /// smoothed measured/predicted ratio, the predictor–corrector of section 3.5), `"estimator"` (eq. 15
     /// alone, the paper's method, by default forecast to the coming interval's middle by half its change
-    /// since the balancing step before: `balance.forecast`), `"cells"` (fluid cells), `"measured"` (the block's m_tot over the last
-    /// interval) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which
+    /// since the balancing step before: `balance.forecast`), `"cells"` (fluid cells), `"measured"` (the
+    /// block's m_tot over the last interval) or `"uniform"` (1 per block: equal block counts). With every strategy but `"none"` (which
     /// never moves a block) the blocks are redistributed with these weights at the end of every interval.
     #[serde(default)]
     pub weights: Weights,
