@@ -444,36 +444,16 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
         (Some(c), false) => format!(" (ten Cate {c} changed: not the experiment, no reference speed)"),
         (None, _) => String::new(),
     };
-    let observe = Box::new(move |v: &dyn super::FluidView| {
-        let traj = v.trajectory();
-        let (peak, t_peak) = peak_settling_speed(&traj);
-        let raw = traj.iter().map(|(_, b)| -b.velocity.z).fold(0.0, f64::max);
-        let noise = velocity_noise(&traj);
-        let z = v.bodies().first().map_or(0.0, |b| b.position.z);
-        let u = peak * dx / dt;
-        let mut o = BTreeMap::from([
-            ("terminal_velocity".to_string(), u),
-            ("time_of_peak".to_string(), t_peak * dt),
-            ("reynolds".to_string(), u * d / nu),
-            ("galileo".to_string(), galileo),
-            ("density_ratio".to_string(), ratio),
-            ("stokes".to_string(), ratio * u * d / nu / 9.0),
-            ("reynolds_estimate".to_string(), re_est),
-            ("peak_mach".to_string(), raw / cs),
-            ("peak_velocity_raw".to_string(), raw * dx / dt),
-            ("final_gap".to_string(), z * dx - 0.5 * d),
-            ("dx".to_string(), dx),
-            ("dt".to_string(), dt),
-            ("velocity_noise".to_string(), noise),
-        ]);
-        if let Some(c) = reference {
-            let r = c.peak_speed();
-            o.insert("reference_velocity".to_string(), r);
-            o.insert("relative_error".to_string(), (u - r).abs() / r);
-            o.insert("relative_error_raw".to_string(), (raw * dx / dt - r).abs() / r);
-        }
-        o
-    });
+    let scales = Scales {
+        dx,
+        dt,
+        d,
+        nu,
+        galileo,
+        ratio,
+        re_est,
+    };
+    let observe = observables(scales, reference);
     Ok(Scene {
         name: "settling_sphere",
         cells: Some(cells),
@@ -505,6 +485,71 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
              closed {:?} m box ({cells:?} cells), dx = {dx:.4e} m, dt = {dt:.4e} s, tau = {tau:.5}",
             s.resolution, p.rho_p, p.rho_f, p.mu, case_label, s.r#box
         ),
+    })
+}
+
+/// The physical scales of a run that its observables convert with.
+#[derive(Clone, Copy)]
+struct Scales {
+    /// Cell size (m).
+    dx: f64,
+    /// Time step (s).
+    dt: f64,
+    /// Sphere diameter (m).
+    d: f64,
+    /// Kinematic viscosity of the fluid (m²/s).
+    nu: f64,
+    /// Galileo number.
+    galileo: f64,
+    /// Density ratio ρ_p / ρ_f.
+    ratio: f64,
+    /// Schiller–Naumann estimate of the terminal Reynolds number.
+    re_est: f64,
+}
+
+/// The observables of a settling run: the peak settling speed (windowed over one cell of travel, and the
+/// raw per-step maximum) in m/s, its Reynolds and Stokes numbers, the velocity noise, the final gap
+/// to the bottom and, for one of ten Cate's cases, the errors against its measured peak.
+fn observables(scales: Scales, reference: Option<TenCateCase>) -> super::ObserveFn {
+    let Scales {
+        dx,
+        dt,
+        d,
+        nu,
+        galileo,
+        ratio,
+        re_est,
+    } = scales;
+    let cs = 1.0 / 3f64.sqrt();
+    Box::new(move |v: &dyn super::FluidView| {
+        let traj = v.trajectory();
+        let (peak, t_peak) = peak_settling_speed(&traj);
+        let raw = traj.iter().map(|(_, b)| -b.velocity.z).fold(0.0, f64::max);
+        let noise = velocity_noise(&traj);
+        let z = v.bodies().first().map_or(0.0, |b| b.position.z);
+        let u = peak * dx / dt;
+        let mut o = BTreeMap::from([
+            ("terminal_velocity".to_string(), u),
+            ("time_of_peak".to_string(), t_peak * dt),
+            ("reynolds".to_string(), u * d / nu),
+            ("galileo".to_string(), galileo),
+            ("density_ratio".to_string(), ratio),
+            ("stokes".to_string(), ratio * u * d / nu / 9.0),
+            ("reynolds_estimate".to_string(), re_est),
+            ("peak_mach".to_string(), raw / cs),
+            ("peak_velocity_raw".to_string(), raw * dx / dt),
+            ("final_gap".to_string(), z * dx - 0.5 * d),
+            ("dx".to_string(), dx),
+            ("dt".to_string(), dt),
+            ("velocity_noise".to_string(), noise),
+        ]);
+        if let Some(c) = reference {
+            let r = c.peak_speed();
+            o.insert("reference_velocity".to_string(), r);
+            o.insert("relative_error".to_string(), (u - r).abs() / r);
+            o.insert("relative_error_raw".to_string(), (raw * dx / dt - r).abs() / r);
+        }
+        o
     })
 }
 
