@@ -118,6 +118,25 @@ impl Error {
             Error::Interrupted { signal, .. } => 128 + signal,
         }
     }
+
+    /// The message as one line: control characters that reached it from user input (a `--set` value
+    /// or a file name with a line break) are written as escapes (`\n`, `\t`, `\u{1b}`).
+    pub fn one_line(&self) -> String {
+        escape_controls(&self.to_string())
+    }
+}
+
+/// `s` with each control character written as its Rust escape, everything else as it is.
+pub fn escape_controls(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// Name of a signal number for messages (`SIGINT`, `SIGTERM`, `SIGUSR1`, else `signal N`).
@@ -142,3 +161,18 @@ pub fn io_err(path: &std::path::Path, e: std::io::Error) -> Error {
 
 /// Result with [`Error`].
 pub type Result<T> = std::result::Result<T, Error>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A message with a line break, a tab and an escape character prints as one line; others unchanged.
+    #[test]
+    fn messages_print_as_one_line() {
+        let e = Error::Config("--set fluid.tau=0.7\n[scene]\tx\u{1b}".into());
+        assert_eq!(e.one_line(), "--set fluid.tau=0.7\\n[scene]\\tx\\u{1b}");
+        assert!(!e.one_line().contains('\n'));
+        let plain = "scene.kind = \"boxx\": unknown scene; one of channel, … (é)";
+        assert_eq!(escape_controls(plain), plain);
+    }
+}

@@ -18,7 +18,7 @@ fn main() {
     mpi::finish(r.is_ok(), own);
     if let Err(e) = r {
         if mpi::reports() {
-            eprintln!("error: {e}");
+            eprintln!("error: {}", e.one_line());
         }
         std::process::exit(e.exit_code());
     }

@@ -1209,3 +1209,44 @@ fn hopper_without_spheres_runs() {
     );
     assert_eq!(o.code, Some(0), "{}", o.stderr);
 }
+
+/// Thousands of worker threads under the fuzzing's address-space cap: a thread that could not map its
+/// signal stack aborted the process. The threads' stacks are part of the memory estimate, and the
+/// message names the process keys.
+#[test]
+fn thread_counts_past_the_memory_are_refused() {
+    use Source::Config as C;
+    for (file, key) in [
+        ("box.toml", "processes.count=4096"),
+        ("calibration.toml", "processes.threads_per_process=4096"),
+    ] {
+        refused(
+            C(file),
+            &["--steps", "2", "--set", key],
+            &["worker threads", "processes.threads_per_process", "processes.count"],
+        );
+    }
+}
+
+/// A `--set` value that went on with lines of TOML (`0.7\n[scene]\nkind="box"`) took the first value and
+/// dropped the rest, and a message that quoted it was several lines. It is refused, on one line.
+#[test]
+fn multi_line_set_values_are_refused_on_one_line() {
+    refused(
+        Source::Config("taylor_green.toml"),
+        &["--steps", "2", "--set", "fluid.tau=0.7\n[scene]\nkind=\"box\""],
+        &["--set fluid.tau", "more than one TOML value"],
+    );
+    refused(
+        Source::Config("taylor_green.toml"),
+        &[
+            "--steps",
+            "2",
+            "--set",
+            "fluid=\"x\"",
+            "--set",
+            "fluid.tau=0.7\n[scene]\nkind=\"box\"",
+        ],
+        &["--set fluid.tau"],
+    );
+}

@@ -71,6 +71,13 @@ pub fn apply_override(table: &mut toml::Table, spec: &str) -> Result<()> {
         return config_err(format!("--set {spec}: empty key"));
     }
     let value = match format!("v = {raw}").parse::<toml::Table>() {
+        // More than `v`: the value went on with further lines of TOML (`0.7\n[scene]...`).
+        Ok(t) if t.len() > 1 => {
+            return config_err(format!(
+                "--set {key}: the value {raw:?} is more than one TOML value; give one value (a number, string, \
+                 array or inline table)"
+            ))
+        }
         Ok(mut t) => t.remove("v").expect("parsed key"),
         Err(_) => toml::Value::String(raw.to_string()),
     };

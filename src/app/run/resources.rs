@@ -13,7 +13,7 @@ pub fn available_memory() -> Option<u128> {
     let kb: u128 = line.split_whitespace().nth(1)?.parse().ok()?;
     let mut avail = kb * 1024;
     // A container's or batch job's cgroup limit (v2) and the process's own address-space limit bound it
-    // too (with a fifth left for the binary, the threads' stacks and the allocator).
+    // too (with a fifth left for the binary and the allocator; the threads' stacks are estimated apart).
     if let Some(max) = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
         .ok()
         .and_then(|t| t.trim().parse::<u128>().ok())
@@ -44,6 +44,21 @@ pub struct MemoryEstimate {
     /// Particles: each body's copies (two published lists, the rigid-body result, shadows) and the
     /// per-block bookkeeping.
     pub particles: u128,
+    /// The worker threads' stacks and signal stacks ([`THREAD_BYTES`] each): address space more than
+    /// memory, but an address-space limit counts it.
+    pub stacks: u128,
+}
+
+/// Address space one worker thread takes: the standard library's 2 MiB stack, its guard page and the
+/// signal stack (a thread that cannot map its signal stack aborts the process).
+pub const THREAD_BYTES: u128 = 2 * 1024 * 1024 + 64 * 1024;
+
+/// Worker threads this OS process starts: P × T, or R × T with R ranks in the process (under MPI each
+/// rank has only its own T, so this bounds it from above).
+pub fn worker_threads(cfg: &Config) -> u128 {
+    let p = &cfg.processes;
+    let groups = if p.ranks > 1 { p.ranks } else { p.count };
+    groups as u128 * p.threads_per_process as u128
 }
 
 /// The memory estimate of a scene under a configuration.
@@ -67,11 +82,13 @@ pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<MemoryEstimate> {
         }
         None => 0,
     };
+    let stacks = worker_threads(cfg) * THREAD_BYTES;
     Ok(MemoryEstimate {
-        total: pdf + flags + particles,
+        total: pdf + flags + particles + stacks,
         pdf,
         flags,
         particles,
+        stacks,
     })
 }
 
@@ -82,15 +99,27 @@ pub fn check_memory(cfg: &Config, scene: &Scene) -> Result<()> {
         pdf,
         flags,
         particles,
+        stacks,
     } = estimate_memory(cfg, scene)?;
     if let Some(avail) = available_memory() {
         if total > avail {
+            // Name what to change: the threads when their stacks alone take most of it.
+            let change = if stacks * 2 > total {
+                format!(
+                    "use fewer processes or threads (processes.count = {}, processes.ranks = {}, \
+                     processes.threads_per_process = {})",
+                    cfg.processes.count, cfg.processes.ranks, cfg.processes.threads_per_process
+                )
+            } else {
+                "use fewer or smaller blocks (domain.blocks, domain.block_size, scene.resolution)".to_string()
+            };
             return Err(Error::Config(format!(
                 "scene {} needs an estimated {total} bytes ({:.1} GiB: PDFs {pdf}, flags {flags}, particles \
-                 {particles}) but the machine has {avail} bytes available (MemAvailable, cgroup and address-space limits); use fewer or smaller \
-                 blocks (domain.blocks, domain.block_size, scene.resolution)",
+                 {particles}, stacks of {} worker threads {stacks}) but the machine has {avail} bytes available \
+                 (MemAvailable, cgroup and address-space limits); {change}",
                 scene.name,
-                total as f64 / (1u64 << 30) as f64
+                total as f64 / (1u64 << 30) as f64,
+                worker_threads(cfg)
             )));
         }
     }
