@@ -382,6 +382,9 @@ pub(crate) fn kinetic_energy(view: &dyn FluidView) -> f64 {
 
 /// Steps for a wall-bounded flow to reach steady state to ~1e-13: the slowest viscous mode decays as
 /// exp(-π² ν t / H²), so t = 3.1 H² / ν.
+/// (H² in floating point: a width past 2³² cells, which the extent check refuses later, must not overflow
+/// here first.)
 pub(crate) fn steady_steps(h: usize, nu: f64) -> u64 {
-    (3.1 * (h * h) as f64 / nu).ceil() as u64
+    let h = h as f64;
+    (3.1 * (h * h) / nu).ceil() as u64
 }
