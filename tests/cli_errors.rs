@@ -310,3 +310,29 @@ fn bad_coefficient_files_name_the_key() {
         &["/nonexistent/c.toml"],
     );
 }
+
+/// `study --processes` past what `run` accepts (processes.count) recorded the scene at a crawl and
+/// replayed it on empty processes: it is refused, naming the flag, before anything runs.
+#[test]
+fn study_process_counts_are_bounded() {
+    let out = tmp("study-processes");
+    for (p, t, flag, v) in [
+        ("100000", "1", "--processes", "100000"),
+        ("4", "0", "--threads-per-process", "0"),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+            .arg("study")
+            .arg(configs().join("hopper-small.toml"))
+            .args(["--processes", p, "--threads-per-process", t, "--out"])
+            .arg(&out)
+            .output()
+            .expect("binary runs");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
+        assert!(
+            err.contains(&format!("{flag} {v}: must be between 1 and 4096")),
+            "{err}"
+        );
+    }
+}

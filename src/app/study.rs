@@ -265,10 +265,14 @@ fn parse_strategy(name: &str) -> Option<config::Strategy> {
 /// Runs the study and writes `table3.md`, `table3.csv`, `study.json`, `study_intervals.csv`,
 /// `figure10.png` and `figure11.png` into `opts.out`.
 pub fn study(opts: &StudyOptions) -> Result<StudyReport> {
-    if opts.processes == 0 || opts.threads_per_process == 0 {
-        return Err(Error::Config(
-            "--processes and --threads-per-process must be at least 1".to_string(),
-        ));
+    let max = config::MAX_PROCESS_COUNT;
+    for (flag, v) in [
+        ("--processes", opts.processes),
+        ("--threads-per-process", opts.threads_per_process),
+    ] {
+        if v == 0 || v > max {
+            return Err(Error::Config(format!("{flag} {v}: must be between 1 and {max}")));
+        }
     }
     if opts.strategies.is_empty() {
         return Err(Error::Config(format!(

@@ -20,7 +20,7 @@ pub use domain::DomainConfig;
 pub use fluid::{FluidConfig, KernelChoice, Precision, Streaming};
 pub use parse::{apply_override, load, parse, parse_table};
 pub use particles::{ContactSolver, ParticlesConfig, Refill, SurfaceBoundary};
-pub use processes::{PinConfig, ProcessesConfig, StealConfig};
+pub use processes::{PinConfig, ProcessesConfig, StealConfig, MAX_PROCESS_COUNT};
 pub use run::{RunConfig, VtkEncoding, DEFAULT_KEPT};
 
 use crate::error::Result;

@@ -77,6 +77,9 @@ impl Default for ProcessesConfig {
     }
 }
 
+/// The largest value of each `[processes]` count (processes, ranks, threads per process, steps per graph run).
+pub const MAX_PROCESS_COUNT: usize = 4096;
+
 impl ProcessesConfig {
     /// Checks the keys' ranges; the message names the key.
     pub fn validate(&self) -> Result<()> {
@@ -86,8 +89,8 @@ impl ProcessesConfig {
             ("processes.threads_per_process", self.threads_per_process),
             ("processes.steps_per_graph", self.steps_per_graph),
         ] {
-            if v == 0 || v > 4096 {
-                return config_err(format!("{name} = {v}: must be between 1 and 4096"));
+            if v == 0 || v > MAX_PROCESS_COUNT {
+                return config_err(format!("{name} = {v}: must be between 1 and {MAX_PROCESS_COUNT}"));
             }
         }
         if self.ranks > 1 && self.steal == StealConfig::Global {
