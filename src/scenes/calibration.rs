@@ -7,7 +7,6 @@ use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::Geometry;
 use blockflow_kernels::rigid::Body;
-use blockflow_kernels::TrtParams;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -129,21 +128,11 @@ pub(super) fn build(s: &CalibrationConfig, cfg: &Config) -> Result<Scene> {
         periodic: [true, true, false],
         default_blocks: blocks,
         geometry,
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
+        params: super::unforced(tau, cfg),
         steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe,
-        particles: Some(ParticleScene {
-            bodies,
-            planes,
-            gravity: [0.0, 0.0, -g],
-            restitution_threshold: 1e-3,
-            dt: 1.0,
-        }),
+        particles: Some(ParticleScene::coupled(bodies, planes, g)),
         units: None,
         description: format!(
             "calibration (section 3.3): {count} spheres of D = {d}, solid fraction {}, Ga = {}, rho_p/rho_f = {}, \

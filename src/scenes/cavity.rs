@@ -86,13 +86,9 @@ pub(super) fn build(s: &CavityConfig, cfg: &Config) -> Result<Scene> {
         periodic: [false, false, false],
         default_blocks: [1, 1, 1],
         geometry,
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
+        params: super::unforced(tau, cfg),
         steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe: Box::new(move |v| {
             // Centre lines: average over the cells adjacent to the centre (one cell when N is odd).
             let near = |c: usize| c == mid || (!odd && c + 1 == mid);

@@ -70,7 +70,7 @@ pub(super) fn build(s: &ChannelConfig, cfg: &Config) -> Result<Scene> {
         geometry: Geometry::default(),
         params,
         steps: steady_steps(s.resolution, nu),
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe: Box::new(move |v| BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])),
         particles: None,
         units: None,

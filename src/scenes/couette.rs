@@ -5,7 +5,6 @@ use super::{check, relative_l2, steady_steps, tau_or, Scene};
 use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::{FaceWall, Geometry};
-use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -62,13 +61,9 @@ pub(super) fn build(s: &CouetteConfig, cfg: &Config) -> Result<Scene> {
         periodic: [true, false, true],
         default_blocks: [1, 1, 1],
         geometry,
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
+        params: super::unforced(tau, cfg),
         steps: steady_steps(s.resolution, nu),
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe: Box::new(move |v| BTreeMap::from([("l2_error".to_string(), relative_l2(v, exact))])),
         particles: None,
         units: None,

@@ -122,7 +122,7 @@ pub(super) fn build(s: &DragArrayConfig, cfg: &Config) -> Result<Scene> {
             force: [force, 0.0, 0.0],
         },
         steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe,
         particles: Some(ParticleScene {
             bodies: vec![body],

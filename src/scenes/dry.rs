@@ -42,7 +42,7 @@ pub(super) fn dry_scene(name: &'static str, cells: [usize; 3], blocks: [usize; 3
             force: [0.0; 3],
         },
         steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe: Box::new(|_| BTreeMap::new()),
         particles: None,
         units: None,

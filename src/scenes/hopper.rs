@@ -7,7 +7,6 @@ use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::Geometry;
 use blockflow_kernels::rigid::Body;
-use blockflow_kernels::TrtParams;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -180,21 +179,11 @@ pub(super) fn build(s: &HopperConfig, cfg: &Config) -> Result<Scene> {
         periodic: [false; 3],
         default_blocks: blocks,
         geometry,
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
+        params: super::unforced(tau, cfg),
         steps: s.steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe,
-        particles: Some(ParticleScene {
-            bodies,
-            planes,
-            gravity: [0.0, 0.0, -g],
-            restitution_threshold: 1e-3,
-            dt: 1.0,
-        }),
+        particles: Some(ParticleScene::coupled(bodies, planes, g)),
         units: None,
         description: format!(
             "hopper: {} spheres of D = {d}, Ga = {}, rho_p/rho_f = {}, {:?} cells, cross-section narrowed by {}",

@@ -103,6 +103,35 @@ pub struct ParticleScene {
     pub dt: f64,
 }
 
+impl ParticleScene {
+    /// The bodies of a coupled scene: `bodies` and `planes` under gravity −`g` along z, lattice time
+    /// steps (dt = 1) and the default restitution threshold 10⁻³.
+    pub fn coupled(bodies: Vec<Body>, planes: Vec<Plane>, g: f64) -> Self {
+        ParticleScene {
+            bodies,
+            planes,
+            gravity: [0.0, 0.0, -g],
+            restitution_threshold: 1e-3,
+            dt: 1.0,
+        }
+    }
+}
+
+/// TRT parameters of relaxation time `tau` with the configured magic parameter Λ (`fluid.magic`) and
+/// no body force.
+pub(crate) fn unforced(tau: f64, cfg: &Config) -> TrtParams {
+    TrtParams {
+        tau,
+        magic: cfg.fluid.magic,
+        force: [0.0; 3],
+    }
+}
+
+/// The initial state of fluid at rest: δρ = 0 and u = 0 in every cell.
+pub(crate) fn at_rest() -> InitFn {
+    Box::new(|_| (0.0, [0.0; 3]))
+}
+
 /// Default `scene.seed` of the scenes with random placement or jitter.
 fn default_seed() -> u64 {
     1

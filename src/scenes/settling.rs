@@ -20,7 +20,6 @@ use crate::config::Config;
 use crate::error::{config_err, Result};
 use crate::physics::geometry::Geometry;
 use blockflow_kernels::rigid::Body;
-use blockflow_kernels::TrtParams;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -460,21 +459,11 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
         periodic: [false; 3],
         default_blocks: default_blocks(cells),
         geometry: Geometry::default(),
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
+        params: super::unforced(tau, cfg),
         steps,
-        init: Box::new(|_| (0.0, [0.0; 3])),
+        init: super::at_rest(),
         observe,
-        particles: Some(ParticleScene {
-            bodies: vec![body],
-            planes,
-            gravity: [0.0, 0.0, -g_lat],
-            restitution_threshold: 1e-3,
-            dt: 1.0,
-        }),
+        particles: Some(ParticleScene::coupled(vec![body], planes, g_lat)),
         units: Some(Units {
             dx,
             dt,
@@ -511,16 +500,8 @@ struct Scales {
 /// raw per-step maximum) in m/s, its Reynolds and Stokes numbers, the velocity noise, the final gap
 /// to the bottom and, for one of ten Cate's cases, the errors against its measured peak.
 fn observables(scales: Scales, reference: Option<TenCateCase>) -> super::ObserveFn {
-    let Scales {
-        dx,
-        dt,
-        d,
-        nu,
-        galileo,
-        ratio,
-        re_est,
-    } = scales;
     let cs = 1.0 / 3f64.sqrt();
+    let Scales { dx, dt, d, nu, .. } = scales;
     Box::new(move |v: &dyn super::FluidView| {
         let traj = v.trajectory();
         let (peak, t_peak) = peak_settling_speed(&traj);
@@ -532,10 +513,10 @@ fn observables(scales: Scales, reference: Option<TenCateCase>) -> super::Observe
             ("terminal_velocity".to_string(), u),
             ("time_of_peak".to_string(), t_peak * dt),
             ("reynolds".to_string(), u * d / nu),
-            ("galileo".to_string(), galileo),
-            ("density_ratio".to_string(), ratio),
-            ("stokes".to_string(), ratio * u * d / nu / 9.0),
-            ("reynolds_estimate".to_string(), re_est),
+            ("galileo".to_string(), scales.galileo),
+            ("density_ratio".to_string(), scales.ratio),
+            ("stokes".to_string(), scales.ratio * u * d / nu / 9.0),
+            ("reynolds_estimate".to_string(), scales.re_est),
             ("peak_mach".to_string(), raw / cs),
             ("peak_velocity_raw".to_string(), raw * dx / dt),
             ("final_gap".to_string(), z * dx - 0.5 * d),

@@ -10,7 +10,6 @@ use super::{check, kinetic_energy, relative_l2, tau_or, Scene};
 use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::Geometry;
-use blockflow_kernels::TrtParams;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
@@ -72,11 +71,7 @@ pub(super) fn build(s: &TaylorGreenConfig, cfg: &Config) -> Result<Scene> {
         periodic: [true, true, true],
         default_blocks: [1, 1, 1],
         geometry: Geometry::default(),
-        params: TrtParams {
-            tau,
-            magic: cfg.fluid.magic,
-            force: [0.0; 3],
-        },
+        params: super::unforced(tau, cfg),
         steps,
         init: Box::new(move |g| field(g, 0.0)),
         observe: Box::new(move |v| {
