@@ -336,3 +336,40 @@ fn study_process_counts_are_bounded() {
         );
     }
 }
+
+/// A samples file with a NaN time (hand-edited or damaged) reached the fit and failed only when figure 7
+/// found nothing to plot: the reader names the line and the column.
+#[test]
+fn calibrate_refuses_non_finite_samples() {
+    let dir = tmp("samples-nan");
+    let names = "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,\
+                 particle_links,link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,\
+                 contacts_seen,scanned,wall_lines,tail_runs,shifted_runs,m_lbm,m_bh,m_coup1,m_coup2,m_rb";
+    let n = names.split(',').count();
+    let row = |last: &str| {
+        let mut v = vec!["1"; n - 1];
+        v.push(last);
+        v.join(",")
+    };
+    for bad in ["nan", "inf", "-inf"] {
+        let p = write(
+            &dir,
+            "samples.csv",
+            &format!("{names}\n{}\n{}\n", row("1e-6"), row(bad)),
+        );
+        let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+            .args(["calibrate", "--samples"])
+            .arg(&p)
+            .arg("--out")
+            .arg(dir.join("out"))
+            .output()
+            .expect("binary runs");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
+        assert!(
+            err.contains("samples.csv:3: column m_rb is not a finite number"),
+            "{bad}: {err}"
+        );
+    }
+}

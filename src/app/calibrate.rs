@@ -1108,15 +1108,20 @@ fn read_samples(path: &Path) -> Result<Campaign> {
     let mut fluid_seen: Vec<Vec<bool>> = Vec::new();
     for (n, line) in lines.enumerate() {
         let f: Vec<&str> = line.split(',').collect();
+        // Counts and times are finite: a NaN or infinity (a hand-edited or damaged file) would reach the
+        // fit and the figures.
         let num = |k: usize| -> Result<f64> {
-            f.get(idx[k]).and_then(|x| x.parse::<f64>().ok()).ok_or_else(|| {
-                Error::Config(format!(
-                    "{}:{}: column {} is not a number",
-                    path.display(),
-                    n + 2,
-                    names[k]
-                ))
-            })
+            f.get(idx[k])
+                .and_then(|x| x.parse::<f64>().ok())
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| {
+                    Error::Config(format!(
+                        "{}:{}: column {} is not a finite number",
+                        path.display(),
+                        n + 2,
+                        names[k]
+                    ))
+                })
         };
         let v: Vec<f64> = (0..names.len()).map(num).collect::<Result<_>>()?;
         let (run, block) = (v[0] as usize, v[5] as usize);
