@@ -373,3 +373,22 @@ fn calibrate_refuses_non_finite_samples() {
         );
     }
 }
+
+/// A bad value late in a sweep stopped it only after the runs before it: every combination is checked
+/// before the first run, so the only line is the error.
+#[test]
+fn sweeps_check_every_combination_first() {
+    let out = tmp("sweep-late-error");
+    let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+        .arg("sweep")
+        .arg(configs().join("channel.toml"))
+        .args(["--vary", "fluid.tau=0.6,0.7,abc", "--steps", "2", "--out"])
+        .arg(&out)
+        .output()
+        .expect("binary runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "runs before the error: {err}");
+    assert!(err.contains("fluid.tau") && err.contains("abc"), "{err}");
+    assert!(!out.join("sweep.csv").exists(), "a failed sweep wrote sweep.csv");
+}

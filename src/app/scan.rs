@@ -216,8 +216,14 @@ pub fn scan(opts: &ScanOptions) -> Result<ScanReport> {
     }
     std::fs::create_dir_all(&opts.out).map_err(|e| io_err(&opts.out, e))?;
     let keys: Vec<String> = opts.vary.iter().map(|(k, _)| k.clone()).collect();
+    let combos = combinations(&opts.vary);
+    // Every combination's configuration is checked before the first run: a bad value late in the sweep
+    // would otherwise stop it after the runs before it.
+    for combo in &combos {
+        config::load(&opts.scene, &sets_of(opts, &keys, combo))?;
+    }
     let mut rows = Vec::new();
-    for (n, combo) in combinations(&opts.vary).iter().enumerate() {
+    for (n, combo) in combos.iter().enumerate() {
         let row = best_of_repeats(opts, &keys, n, combo)?;
         let took = match (row.failed_step, row.wall_seconds.is_finite()) {
             (Some(st), _) => format!(" at step {st}"),
@@ -288,6 +294,13 @@ pub fn scan(opts: &ScanOptions) -> Result<ScanReport> {
     })
 }
 
+/// The `--set` overrides of one combination: the sweep's own, then each varied key's value.
+fn sets_of(opts: &ScanOptions, keys: &[String], combo: &[String]) -> Vec<String> {
+    let mut sets = opts.sets.clone();
+    sets.extend(keys.iter().zip(combo).map(|(k, v)| format!("{k}={v}")));
+    sets
+}
+
 /// Every combination of the varied values, the first key slowest.
 fn combinations(vary: &[(String, Vec<String>)]) -> Vec<Vec<String>> {
     let mut combos: Vec<Vec<String>> = vec![Vec::new()];
@@ -309,9 +322,7 @@ fn combinations(vary: &[(String, Vec<String>)]) -> Vec<Vec<String>> {
 /// Runs combination `n` (`--repeat` times, stopping early past `repeat_until_seconds`) and keeps the
 /// fastest row.
 fn best_of_repeats(opts: &ScanOptions, keys: &[String], n: usize, combo: &[String]) -> Result<ScanRow> {
-    let mut sets = opts.sets.clone();
-    sets.extend(keys.iter().zip(combo).map(|(k, v)| format!("{k}={v}")));
-    let cfg = config::load(&opts.scene, &sets)?;
+    let cfg = config::load(&opts.scene, &sets_of(opts, keys, combo))?;
     let mut best: Option<ScanRow> = None;
     for _ in 0..opts.repeat.max(1) {
         let row = one_row(opts, &cfg, n, combo)?;

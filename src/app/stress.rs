@@ -79,7 +79,11 @@ pub fn parse_range(s: &str) -> Result<(String, Vec<String>)> {
     if parts.len() < 3 || parts.len() > 4 || v.contains(',') {
         return scan::parse_vary(s);
     }
-    let bad = || Error::Config(format!("--vary {s}: expected A:B:N[:log] with numbers A, B and N >= 2"));
+    let bad = || {
+        Error::Config(format!(
+            "--vary {s}: expected A:B:N[:log] with finite numbers A and B (both > 0 with log) and N from 2 to 1000"
+        ))
+    };
     let a: f64 = parts[0].trim().parse().map_err(|_| bad())?;
     let b: f64 = parts[1].trim().parse().map_err(|_| bad())?;
     let n: usize = parts[2].trim().parse().map_err(|_| bad())?;
