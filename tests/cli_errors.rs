@@ -392,3 +392,39 @@ fn sweeps_check_every_combination_first() {
     assert!(err.contains("fluid.tau") && err.contains("abc"), "{err}");
     assert!(!out.join("sweep.csv").exists(), "a failed sweep wrote sweep.csv");
 }
+
+/// Benchmarks sized past the machine: `bench kernel --size 100000` aborted on the allocation and
+/// `--threads 1000` was ended by the out-of-memory killer; `bench mpi --max` started a run per rank count
+/// up to any number. Each is refused before it starts, naming the flag.
+#[test]
+fn oversized_benchmarks_are_refused() {
+    for (args, needle) in [
+        (
+            &["kernel", "--quick", "--size", "100000"][..],
+            "--size must be between 8 and 4096",
+        ),
+        (
+            &["kernel", "--quick", "--size", "1000"][..],
+            "lower --size or --threads",
+        ),
+        (
+            &["kernel", "--quick", "--threads", "100000"][..],
+            "lower --size or --threads",
+        ),
+        (
+            &["mpi", "--max", "100000", "--steps", "1"][..],
+            "--max 100000: at most 96",
+        ),
+    ] {
+        let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+            .arg("bench")
+            .args(args)
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .output()
+            .expect("binary runs");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+}

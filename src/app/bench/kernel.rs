@@ -496,15 +496,30 @@ pub const SETUPS: [KernelSetup; 3] = [
     },
 ];
 
+/// Bytes of each roofline array: four times L3, and at least 64 MiB unless `quick`.
+fn roofline_array_bytes(quick: bool) -> usize {
+    let four_l3 = 4 * l3_bytes();
+    if quick {
+        four_l3
+    } else {
+        four_l3.max(64 << 20)
+    }
+}
+
+/// Bytes the benchmark holds at its peak: per thread of its largest thread count, the roofline's two
+/// arrays or one f64 block's fields (two under pull), whichever is larger, and the thread's stack.
+pub fn memory_needed(opts: &KernelBenchOptions) -> u128 {
+    let threads = opts.threads.iter().copied().max().unwrap_or(1) as u128;
+    let arrays = 2 * roofline_array_bytes(opts.quick) as u128;
+    let fields = 2 * 8 * Layout::new::<f64>([opts.size; 3]).len() as u128;
+    threads * (arrays.max(fields) + crate::app::run::resources::THREAD_BYTES)
+}
+
 /// Runs the benchmark: roofline for each thread count, then the kernels of [`SETUPS`] on one periodic fluid
 /// block of size³ per thread (f64 and f32), and returns the table.
 pub fn run(opts: &KernelBenchOptions) -> KernelBenchReport {
-    let four_l3 = 4 * l3_bytes();
-    let (array_bytes, copy_reps, seconds) = if opts.quick {
-        (four_l3, 5, 0.5)
-    } else {
-        (four_l3.max(64 << 20), 15, 2.5)
-    };
+    let array_bytes = roofline_array_bytes(opts.quick);
+    let (copy_reps, seconds) = if opts.quick { (5, 0.5) } else { (15, 2.5) };
     let rooflines: Vec<Roofline> = opts
         .threads
         .iter()

@@ -191,12 +191,23 @@ pub fn execute(which: BenchKind) -> Result<()> {
             Ok(())
         }
         BenchKind::Kernel { quick, size, threads } => {
-            if size < 8 || threads.is_empty() || threads.contains(&0) {
+            if !(8..=4096).contains(&size) || threads.is_empty() || threads.contains(&0) {
                 return Err(Error::Config(
-                    "bench kernel: --size must be at least 8 and --threads positive".into(),
+                    "bench kernel: --size must be between 8 and 4096 and --threads positive".into(),
                 ));
             }
             let opts = kernel::KernelBenchOptions { quick, size, threads };
+            // Refused before anything is allocated: a block per thread past the memory would abort the
+            // run or call the out-of-memory killer.
+            let need = kernel::memory_needed(&opts);
+            if let Some(avail) = crate::app::run::resources::available_memory().filter(|&a| need > a) {
+                return Err(Error::Config(format!(
+                    "bench kernel: --size {size} with --threads up to {} needs an estimated {need} bytes ({:.1} GiB) \
+                     but the machine has {avail} bytes available; lower --size or --threads",
+                    opts.threads.iter().max().unwrap_or(&1),
+                    need as f64 / (1u64 << 30) as f64
+                )));
+            }
             let report = kernel::run(&opts);
             print(&format!("{}\n", report.to_markdown()));
             Ok(())

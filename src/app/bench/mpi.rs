@@ -74,6 +74,15 @@ fn run(cmd: &mut Command, out: &Path) -> Result<serde_json::Value> {
 pub fn bench(max: usize, steps: u64, out: &Path, configs: &Path) -> Result<Vec<Row>> {
     let exe = std::env::current_exe().map_err(|e| Error::Io(format!("bench mpi: this program's path: {e}")))?;
     let scene = configs.join("hopper-small.toml");
+    // More ranks than blocks would hold nothing (and start as many processes under mpirun).
+    let cfg = crate::config::load(&scene, &[])?;
+    let blocks = crate::scenes::domain_for(&cfg.domain, &crate::scenes::build(&cfg)?)?.num_blocks();
+    if max > blocks {
+        return Err(Error::Config(format!(
+            "bench mpi: --max {max}: at most {blocks}, the blocks of {}: more ranks would hold none",
+            scene.display()
+        )));
+    }
     let (mode, mpi) = launcher();
     let mut rows = Vec::new();
     for n in 1..=max {
