@@ -1215,10 +1215,16 @@ fn hopper_without_spheres_runs() {
 
 /// Thousands of worker threads under the fuzzing's address-space cap: a thread that could not map its
 /// signal stack aborted the process. The threads' stacks are part of the memory estimate, and the
-/// message names the process keys.
+/// message names the process keys. Thousands of in-process ranks each built the whole state at once and
+/// aborted on an allocation: their estimate counts the state once per rank.
 #[test]
 fn thread_counts_past_the_memory_are_refused() {
     use Source::Config as C;
+    refused(
+        C("hopper-small.toml"),
+        &["--steps", "2", "--ranks", "4096"],
+        &["processes.ranks = 4096", "use fewer ranks"],
+    );
     for (file, key) in [
         ("box.toml", "processes.count=4096"),
         ("calibration.toml", "processes.threads_per_process=4096"),

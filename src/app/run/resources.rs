@@ -92,6 +92,26 @@ pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<MemoryEstimate> {
     })
 }
 
+/// Refuses `ranks` in-process ranks of a scene when their state does not fit: each rank builds the
+/// whole state before it releases the blocks it does not hold, and the ranks start at once, so the
+/// estimate ([`estimate_memory`]) counts the state once per rank (and the threads' stacks once).
+pub fn check_memory_in_process_ranks(cfg: &Config, scene: &Scene, ranks: usize) -> Result<()> {
+    let m = estimate_memory(cfg, scene)?;
+    let state = m.total - m.stacks;
+    let total = state * ranks as u128 + m.stacks;
+    if let Some(avail) = available_memory().filter(|&a| total > a) {
+        return Err(Error::Config(format!(
+            "processes.ranks = {ranks}: {ranks} ranks in one process each build the whole state of scene {} \
+             ({state} bytes) before keeping their own blocks, an estimated {total} bytes ({:.1} GiB) with the \
+             threads' stacks, but the machine has {avail} bytes available; use fewer ranks, or MPI (one process \
+             per rank)",
+            scene.name,
+            total as f64 / (1u64 << 30) as f64
+        )));
+    }
+    Ok(())
+}
+
 /// Refuses a scene whose estimated memory ([`estimate_memory`]) exceeds what the machine has available.
 pub fn check_memory(cfg: &Config, scene: &Scene) -> Result<()> {
     let MemoryEstimate {
