@@ -311,28 +311,49 @@ fn bad_coefficient_files_name_the_key() {
     );
 }
 
+/// Runs `blockflow` with `args` (from the crate's root, so `configs/` resolves) and asserts a one-line
+/// failure with exit code 1 whose message contains every needle.
+fn command_fails_cleanly(args: &[&std::ffi::OsStr], needles: &[&str]) {
+    let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("binary runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
+    for n in needles {
+        assert!(err.contains(n), "{args:?}: message lacks {n:?}: {err}");
+    }
+}
+
+/// `args` as the `OsStr`s a command takes.
+fn os<'a>(args: &[&'a str]) -> Vec<&'a std::ffi::OsStr> {
+    args.iter().map(|a| std::ffi::OsStr::new(*a)).collect()
+}
+
 /// `study --processes` past what `run` accepts (processes.count) recorded the scene at a crawl and
 /// replayed it on empty processes: it is refused, naming the flag, before anything runs.
 #[test]
 fn study_process_counts_are_bounded() {
     let out = tmp("study-processes");
-    for (p, t, flag, v) in [
-        ("100000", "1", "--processes", "100000"),
-        ("4", "0", "--threads-per-process", "0"),
+    let out = out.to_str().expect("a UTF-8 temporary path");
+    for (p, t, needle) in [
+        ("100000", "1", "--processes 100000: must be between 1 and 4096"),
+        ("4", "0", "--threads-per-process 0: must be between 1 and 4096"),
     ] {
-        let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-            .arg("study")
-            .arg(configs().join("hopper-small.toml"))
-            .args(["--processes", p, "--threads-per-process", t, "--out"])
-            .arg(&out)
-            .output()
-            .expect("binary runs");
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
-        assert!(
-            err.contains(&format!("{flag} {v}: must be between 1 and 4096")),
-            "{err}"
+        command_fails_cleanly(
+            &os(&[
+                "study",
+                "configs/hopper-small.toml",
+                "--processes",
+                p,
+                "--threads-per-process",
+                t,
+                "--out",
+                out,
+            ]),
+            &[needle],
         );
     }
 }
@@ -357,19 +378,16 @@ fn calibrate_refuses_non_finite_samples() {
             "samples.csv",
             &format!("{names}\n{}\n{}\n", row("1e-6"), row(bad)),
         );
-        let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-            .args(["calibrate", "--samples"])
-            .arg(&p)
-            .arg("--out")
-            .arg(dir.join("out"))
-            .output()
-            .expect("binary runs");
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
-        assert!(
-            err.contains("samples.csv:3: column m_rb is not a finite number"),
-            "{bad}: {err}"
+        let out = dir.join("out");
+        command_fails_cleanly(
+            &[
+                "calibrate".as_ref(),
+                "--samples".as_ref(),
+                p.as_os_str(),
+                "--out".as_ref(),
+                out.as_os_str(),
+            ],
+            &["samples.csv:3: column m_rb is not a finite number"],
         );
     }
 }
@@ -379,17 +397,19 @@ fn calibrate_refuses_non_finite_samples() {
 #[test]
 fn sweeps_check_every_combination_first() {
     let out = tmp("sweep-late-error");
-    let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-        .arg("sweep")
-        .arg(configs().join("channel.toml"))
-        .args(["--vary", "fluid.tau=0.6,0.7,abc", "--steps", "2", "--out"])
-        .arg(&out)
-        .output()
-        .expect("binary runs");
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(1), "{err}");
-    assert_eq!(err.trim_end().lines().count(), 1, "runs before the error: {err}");
-    assert!(err.contains("fluid.tau") && err.contains("abc"), "{err}");
+    command_fails_cleanly(
+        &[
+            "sweep".as_ref(),
+            "configs/channel.toml".as_ref(),
+            "--vary".as_ref(),
+            "fluid.tau=0.6,0.7,abc".as_ref(),
+            "--steps".as_ref(),
+            "2".as_ref(),
+            "--out".as_ref(),
+            out.as_os_str(),
+        ],
+        &["fluid.tau", "abc"],
+    );
     assert!(!out.join("sweep.csv").exists(), "a failed sweep wrote sweep.csv");
 }
 
@@ -400,31 +420,22 @@ fn sweeps_check_every_combination_first() {
 fn oversized_benchmarks_are_refused() {
     for (args, needle) in [
         (
-            &["kernel", "--quick", "--size", "100000"][..],
+            &["bench", "kernel", "--quick", "--size", "100000"][..],
             "--size must be between 8 and 4096",
         ),
         (
-            &["kernel", "--quick", "--size", "1000"][..],
+            &["bench", "kernel", "--quick", "--size", "1000"][..],
             "lower --size or --threads",
         ),
         (
-            &["kernel", "--quick", "--threads", "100000"][..],
+            &["bench", "kernel", "--quick", "--threads", "100000"][..],
             "lower --size or --threads",
         ),
         (
-            &["mpi", "--max", "100000", "--steps", "1"][..],
+            &["bench", "mpi", "--max", "100000", "--steps", "1"][..],
             "--max 100000: at most 96",
         ),
     ] {
-        let o = Command::new(env!("CARGO_BIN_EXE_blockflow"))
-            .arg("bench")
-            .args(args)
-            .current_dir(env!("CARGO_MANIFEST_DIR"))
-            .output()
-            .expect("binary runs");
-        let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "not one line: {err}");
-        assert!(err.contains(needle), "{args:?}: {err}");
+        command_fails_cleanly(&os(args), &[needle]);
     }
 }
