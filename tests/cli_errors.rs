@@ -333,7 +333,8 @@ fn os<'a>(args: &[&'a str]) -> Vec<&'a std::ffi::OsStr> {
 }
 
 /// `study --processes` past what `run` accepts (processes.count) recorded the scene at a crawl and
-/// replayed it on empty processes: it is refused, naming the flag, before anything runs.
+/// replayed it on empty processes, and `--steps 0` failed on a figure with no data: each is refused,
+/// naming the flag, before anything runs.
 #[test]
 fn study_process_counts_are_bounded() {
     let out = tmp("study-processes");
@@ -356,6 +357,19 @@ fn study_process_counts_are_bounded() {
             &[needle],
         );
     }
+    command_fails_cleanly(
+        &os(&[
+            "study",
+            "configs/hopper-small.toml",
+            "--processes",
+            "2",
+            "--steps",
+            "0",
+            "--out",
+            out,
+        ]),
+        &["--steps 0", "record at least one step"],
+    );
 }
 
 /// A samples file with a NaN time (hand-edited or damaged) reached the fit and failed only when figure 7

@@ -429,6 +429,12 @@ fn checksums<T: Real>(sim: &Simulation<T>) -> (String, Option<String>) {
 
 fn study_t<T: Real>(cfg: &Config, scene: &Scene, opts: &StudyOptions) -> Result<StudyReport> {
     let steps = opts.steps.or(cfg.run.steps).unwrap_or(scene.steps);
+    if steps == 0 {
+        // Nothing recorded leaves nothing to replay (the figures had no data to plot).
+        return Err(Error::Config(
+            "study: --steps 0 (or run.steps = 0): record at least one step".into(),
+        ));
+    }
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let record_threads = match opts.record_threads {
         Some(t) => t.max(1),
