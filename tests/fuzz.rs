@@ -1223,7 +1223,7 @@ fn thread_counts_past_the_memory_are_refused() {
     refused(
         C("hopper-small.toml"),
         &["--steps", "2", "--ranks", "4096"],
-        &["processes.ranks = 4096", "use fewer ranks"],
+        &["use fewer ranks (processes.ranks = 4096", "4096 × (PDFs"],
     );
     for (file, key) in [
         ("box.toml", "processes.count=4096"),

@@ -280,7 +280,7 @@ pub fn run(cfg: &Config, opts: &RunOptions) -> Result<Summary> {
     }
     let mut cfg = cfg.clone();
     cfg.processes.count = ranks;
-    resources::check_memory_in_process_ranks(&cfg, &scenes::build(&cfg)?, ranks)?;
+    resources::check_memory_of_copies(&cfg, &scenes::build(&cfg)?, ranks)?;
     let results = crate::ranks::run_loopback(ranks, None, |w| {
         let w = Arc::new(w);
         let r = run_on(&cfg, opts, w.clone());

@@ -92,28 +92,15 @@ pub fn estimate_memory(cfg: &Config, scene: &Scene) -> Result<MemoryEstimate> {
     })
 }
 
-/// Refuses `ranks` in-process ranks of a scene when their state does not fit: each rank builds the
-/// whole state before it releases the blocks it does not hold, and the ranks start at once, so the
-/// estimate ([`estimate_memory`]) counts the state once per rank (and the threads' stacks once).
-pub fn check_memory_in_process_ranks(cfg: &Config, scene: &Scene, ranks: usize) -> Result<()> {
-    let m = estimate_memory(cfg, scene)?;
-    let state = m.total - m.stacks;
-    let total = state * ranks as u128 + m.stacks;
-    if let Some(avail) = available_memory().filter(|&a| total > a) {
-        return Err(Error::Config(format!(
-            "processes.ranks = {ranks}: {ranks} ranks in one process each build the whole state of scene {} \
-             ({state} bytes) before keeping their own blocks, an estimated {total} bytes ({:.1} GiB) with the \
-             threads' stacks, but the machine has {avail} bytes available; use fewer ranks, or MPI (one process \
-             per rank)",
-            scene.name,
-            total as f64 / (1u64 << 30) as f64
-        )));
-    }
-    Ok(())
-}
-
 /// Refuses a scene whose estimated memory ([`estimate_memory`]) exceeds what the machine has available.
 pub fn check_memory(cfg: &Config, scene: &Scene) -> Result<()> {
+    check_memory_of_copies(cfg, scene, 1)
+}
+
+/// [`check_memory`] for `copies` states built at once in this process: in-process ranks each build the
+/// whole state before they release the blocks they do not hold, and they start together, so the state
+/// counts once per rank (the threads' stacks once in all).
+pub fn check_memory_of_copies(cfg: &Config, scene: &Scene, copies: usize) -> Result<()> {
     let MemoryEstimate {
         total,
         pdf,
@@ -121,27 +108,29 @@ pub fn check_memory(cfg: &Config, scene: &Scene) -> Result<()> {
         particles,
         stacks,
     } = estimate_memory(cfg, scene)?;
-    if let Some(avail) = available_memory() {
-        if total > avail {
-            // Name what to change: the threads when their stacks alone take most of it.
-            let change = if stacks * 2 > total {
-                format!(
-                    "use fewer processes or threads (processes.count = {}, processes.ranks = {}, \
-                     processes.threads_per_process = {})",
-                    cfg.processes.count, cfg.processes.ranks, cfg.processes.threads_per_process
-                )
-            } else {
-                "use fewer or smaller blocks (domain.blocks, domain.block_size, scene.resolution)".to_string()
-            };
-            return Err(Error::Config(format!(
-                "scene {} needs an estimated {total} bytes ({:.1} GiB: PDFs {pdf}, flags {flags}, particles \
-                 {particles}, stacks of {} worker threads {stacks}) but the machine has {avail} bytes available \
-                 (MemAvailable, cgroup and address-space limits); {change}",
-                scene.name,
-                total as f64 / (1u64 << 30) as f64,
-                worker_threads(cfg)
-            )));
-        }
-    }
-    Ok(())
+    let state = (total - stacks) * copies as u128;
+    let total = state + stacks;
+    let Some(avail) = available_memory().filter(|&a| total > a) else {
+        return Ok(());
+    };
+    // Name what to change: what takes most of it.
+    let change = if copies > 1 && state * 2 > total {
+        format!("use fewer ranks (processes.ranks = {copies}: each builds the whole state), or MPI")
+    } else if stacks * 2 > total {
+        format!(
+            "use fewer processes or threads (processes.count = {}, processes.ranks = {}, \
+             processes.threads_per_process = {})",
+            cfg.processes.count, cfg.processes.ranks, cfg.processes.threads_per_process
+        )
+    } else {
+        "use fewer or smaller blocks (domain.blocks, domain.block_size, scene.resolution)".to_string()
+    };
+    Err(Error::Config(format!(
+        "scene {} needs an estimated {total} bytes ({:.1} GiB: {copies} × (PDFs {pdf}, flags {flags}, particles \
+         {particles}), stacks of {} worker threads {stacks}) but the machine has {avail} bytes available \
+         (MemAvailable, cgroup and address-space limits); {change}",
+        scene.name,
+        total as f64 / (1u64 << 30) as f64,
+        worker_threads(cfg)
+    )))
 }
