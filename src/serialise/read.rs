@@ -289,6 +289,10 @@ fn read_work(r: &mut Reader) -> Result<Work, FormatError> {
         scanned_step: r.u64()?,
         shadow_scratch: Vec::new(),
         local_scratch: Vec::new(),
+        // Not kept in a checkpoint: the first sub-step after a restore finds the candidates again.
+        candidates: Default::default(),
+        gathered: Vec::new(),
+        same_bodies: false,
     };
     r.finish()?;
     Ok(w)

@@ -1,6 +1,7 @@
 //! Contact detection (lines 1–5 of Algorithm 7): sphere–sphere and sphere–plane, by all pairs below a body
 //! count threshold and by a grid (linked cells) above it, as section 3.2.5 describes. Both paths produce
-//! the identical, deterministically sorted list.
+//! the identical, deterministically sorted list. Across sub-steps, [`ContactCandidates`] keeps the pairs
+//! within the margin plus a skin and tests only those (a Verlet list), with the same result.
 
 use super::{Body, Plane};
 use glam::DVec3;
@@ -302,6 +303,92 @@ pub fn detect(bodies: &[Body], planes: &[Plane], margin: f64, threshold: usize) 
     }
 }
 
+/// Skin of [`ContactCandidates`] as a fraction of the smallest radius among the bodies.
+const SKIN_PER_RADIUS: f64 = 0.1;
+
+/// Candidate pairs of [`detect`] kept between calls: a Verlet neighbour list with a skin, as LAMMPS's
+/// `neighbor` keeps one. When the list is built, every pair of bodies whose gap is below margin + skin
+/// is a candidate. As long as the bodies are the same, in the same order, and none has moved by half the
+/// skin since, every pair within the margin is among the candidates, so testing only those gives the
+/// same contacts, bit for bit, as [`detect`] over all bodies. Across the sub-steps of a step the bodies
+/// move far less than a skin, so the list is built again only when a body enters or leaves the set or
+/// moves that far.
+#[derive(Clone, Debug, Default)]
+pub struct ContactCandidates {
+    /// Body centres when the pairs were found.
+    centres: Vec<DVec3>,
+    /// Candidate pairs (a, b), oriented as their contacts would be.
+    pairs: Vec<(u32, u32)>,
+    /// The skin the pairs were found with.
+    skin: f64,
+    /// Whether `pairs` belongs to `centres` (false before the first call and after [`Self::clear`]).
+    built: bool,
+    /// Times the list was built (for tests and counters).
+    builds: u64,
+}
+
+impl ContactCandidates {
+    /// Forgets the candidates: the next call builds them again.
+    pub fn clear(&mut self) {
+        self.built = false;
+    }
+
+    /// Times the list was built since it was created.
+    pub fn builds(&self) -> u64 {
+        self.builds
+    }
+
+    /// The contacts of [`detect`] (same arguments, the same list in the same order), from the candidate
+    /// pairs where they are still valid. `same_bodies` is the caller's statement that `bodies` lists the
+    /// same bodies in the same order as at the previous call (their positions may differ); without it the
+    /// candidates are found again.
+    pub fn detect(
+        &mut self,
+        bodies: &[Body],
+        planes: &[Plane],
+        margin: f64,
+        threshold: usize,
+        same_bodies: bool,
+    ) -> Vec<Contact> {
+        let m = margin.max(0.0);
+        // A pair within the margin now was within margin + skin when the list was built if neither
+        // body has moved by half the skin; 0.45 leaves room for the rounding of the displacements.
+        let valid = self.built
+            && same_bodies
+            && self.centres.len() == bodies.len()
+            && bodies
+                .iter()
+                .zip(&self.centres)
+                .all(|(b, c)| (b.position - *c).length_squared() < (0.45 * self.skin).powi(2));
+        if !valid {
+            let r_min = bodies.iter().map(|b| b.radius).fold(f64::INFINITY, f64::min);
+            self.skin = if r_min.is_finite() {
+                SKIN_PER_RADIUS * r_min
+            } else {
+                0.0
+            };
+            self.centres.clear();
+            self.centres.extend(bodies.iter().map(|b| b.position));
+            self.pairs.clear();
+            self.pairs.extend(
+                detect(bodies, &[], m + self.skin, threshold)
+                    .iter()
+                    .filter_map(|c| c.b.map(|b| (c.a as u32, b as u32))),
+            );
+            self.built = true;
+            self.builds += 1;
+        }
+        let mut out: Vec<Contact> = self
+            .pairs
+            .iter()
+            .filter_map(|&(a, b)| sphere_sphere(bodies, a as usize, b as usize, margin))
+            .collect();
+        plane_contacts(bodies, planes, margin, &mut out);
+        sort_contacts(bodies, planes, &mut out);
+        out
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -339,5 +426,47 @@ mod tests {
             assert_eq!(a, detect_grid(&bodies, &planes, 0.05), "far bodies: {far}");
         }
         assert!(detect_grid(&[], &planes, 0.0).is_empty());
+    }
+
+    #[test]
+    fn candidate_lists_give_the_contacts_of_full_detection_at_every_call() {
+        let planes = [Plane::through(0, DVec3::splat(-2.0), DVec3::ONE)];
+        let mut bodies = cloud(300, 4.0, 7);
+        let mut s = 11u64;
+        let mut next = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut cand = ContactCandidates::default();
+        let mut total = 0;
+        for call in 0..200 {
+            // Small random moves, a jump now and then (as a periodic wrap gives), and a changed set.
+            for b in bodies.iter_mut() {
+                b.position += 0.001 * DVec3::new(next(), next(), next());
+            }
+            if call % 37 == 36 {
+                bodies[5].position += DVec3::X * 3.0;
+            }
+            let same = call % 50 != 49;
+            if !same {
+                bodies.swap(0, 1);
+            }
+            for margin in [0.0, 0.02] {
+                let mut c = ContactCandidates::default();
+                assert_eq!(
+                    c.detect(&bodies, &planes, margin, 64, false),
+                    detect(&bodies, &planes, margin, 64)
+                );
+            }
+            let got = cand.detect(&bodies, &planes, 0.02, 64, same);
+            let want = detect(&bodies, &planes, 0.02, 64);
+            assert_eq!(got, want, "call {call}");
+            total += want.len();
+        }
+        assert!(total > 2000, "the cloud must have contacts: {total}");
+        // Built at the first call and after each of the 5 jumps and 4 changed sets (10), and again
+        // when the random walk of some body adds up to half the skin (0.45 × 0.1 × the smallest radius,
+        // 0.1): that takes dozens of calls, so most of the 200 calls reuse the list.
+        assert!((10..60).contains(&cand.builds()), "{} builds", cand.builds());
     }
 }

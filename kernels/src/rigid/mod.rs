@@ -20,7 +20,7 @@ pub mod integrate;
 pub mod jacobi;
 
 pub use body::{Body, Plane};
-pub use contact::{detect, detect_all_pairs, detect_grid, Contact};
+pub use contact::{detect, detect_all_pairs, detect_grid, Contact, ContactCandidates};
 pub use hard_contact::{resolve, resolve_impulses, resolve_impulses_warm, resolve_targets, SolverStats, WarmStart};
 pub use integrate::{apply_forces, integrate, integrate_positions};
 pub use jacobi::{apply_impulses, final_relaxation, project_impulse, JacobiSolve};

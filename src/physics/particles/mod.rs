@@ -147,6 +147,15 @@ pub struct Work {
     pub origins: Vec<(u32, u32)>,
     /// With the Jacobi solver: the state of the current sub-step's solve (see [`jacobi`]).
     pub jacobi: jacobi::JacobiWork,
+    /// Contact candidates kept between sub-steps: detection tests only these pairs while the gathered
+    /// bodies stay the same ([`ContactCandidates`]). A cache: the contacts are those of a detection over
+    /// all pairs, and a checkpoint does not keep it.
+    pub candidates: blockflow_kernels::rigid::ContactCandidates,
+    /// (id, neighbour index) of each body of `bodies` at the last gather: the same list at the next
+    /// gather means the same bodies in the same order.
+    pub gathered: Vec<(u64, u32)>,
+    /// Whether the last gather found the same bodies, in the same order, as the one before it.
+    pub same_bodies: bool,
 }
 
 /// A shadow found by `rb`'s gather: body `id` at `position` (its centre shifted into the block's periodic

@@ -38,8 +38,8 @@
 use super::{dist_to_box, BlockBodies, Delta, OwnedImpulse, Particles, ShadowRef, PLANE_KEY};
 use crate::config::ContactSolver;
 use blockflow_kernels::rigid::{
-    apply_forces, detect, integrate_positions, resolve_impulses, resolve_impulses_warm, resolve_targets, Body, Contact,
-    Plane, WarmStart,
+    apply_forces, integrate_positions, resolve_impulses, resolve_impulses_warm, resolve_targets, Body, Contact, Plane,
+    WarmStart,
 };
 
 impl Particles {
@@ -121,13 +121,20 @@ impl Particles {
         }
         locals.sort_unstable_by_key(|s| s.id);
         shadows.sort_unstable_by_key(|s| (s.id, s.k));
-        for s in locals.iter().chain(&shadows) {
+        let mut same = w.gathered.len() == locals.len() + shadows.len();
+        for (j, s) in locals.iter().chain(&shadows).enumerate() {
             let nb = &blk.neighbours[s.k as usize];
             let mut c = self.blocks[nb.block].published(prev).bodies[s.index as usize];
             c.position = s.position;
             w.bodies.push(c);
             w.origins.push((s.k, s.index));
+            same = same && w.gathered[j] == (s.id, s.k);
         }
+        if !same {
+            w.gathered.clear();
+            w.gathered.extend(locals.iter().chain(&shadows).map(|s| (s.id, s.k)));
+        }
+        w.same_bodies = same;
         w.locals = locals.len();
         shadows.clear();
         locals.clear();
@@ -176,7 +183,13 @@ impl Particles {
         if w.bodies.is_empty() {
             return Vec::new();
         }
-        let mut contacts = detect(&w.bodies, &blk.planes, p.contact_margin, p.grid_threshold);
+        let mut contacts = w.candidates.detect(
+            &w.bodies,
+            &blk.planes,
+            p.contact_margin,
+            p.grid_threshold,
+            w.same_bodies,
+        );
         let bodies = &w.bodies;
         // A body never touches its own periodic image.
         contacts.retain(|c| c.b.is_none_or(|o| bodies[o].id != bodies[c.a].id));
