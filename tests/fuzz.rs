@@ -8,9 +8,10 @@
 //! Run with `cargo test --release --test fuzz`. The CI test runs `FUZZ_CI_CASES` cases from a fixed seed;
 //! the ignored `fuzz_many` runs `BLOCKFLOW_FUZZ_CASES` (default 10 000), optionally from
 //! `BLOCKFLOW_FUZZ_SEED`. Cases run on `BLOCKFLOW_FUZZ_THREADS` threads (default 2). Proptest generates
-//! the inputs deterministically; there is no shrinking (each case is a process with a 30 s limit):
-//! every failing case is printed with the command line that reproduces it. `BLOCKFLOW_FUZZ_BIN` points the
-//! cases at another binary (a debug build, whose overflow checks find more).
+//! the inputs deterministically; there is no shrinking (each case is a process with a 30 s limit,
+//! `BLOCKFLOW_FUZZ_SECONDS` to change it): every failing case is printed with the command line that
+//! reproduces it. `BLOCKFLOW_FUZZ_BIN` points the cases at another binary (a debug build, whose overflow
+//! checks find more; give it `BLOCKFLOW_FUZZ_SECONDS=300`).
 
 use proptest::prelude::*;
 use proptest::strategy::{Strategy, ValueTree};
@@ -25,8 +26,18 @@ use std::time::{Duration, Instant};
 const FUZZ_CI_CASES: usize = 500;
 /// Seed of the CI test (any fixed 32 bytes).
 const FUZZ_SEED: [u8; 32] = *b"blockflow config fuzzing, seed 1";
-/// A case still running after this long is a hang.
+/// A case still running after this long is a hang (`BLOCKFLOW_FUZZ_SECONDS` overrides): the largest
+/// domains the memory cap admits take a few seconds in a release build and about ten times as long in
+/// a debug build, which therefore needs a longer limit.
 const TIME_LIMIT: Duration = Duration::from_secs(30);
+
+fn time_limit() -> Duration {
+    std::env::var("BLOCKFLOW_FUZZ_SECONDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .map(Duration::from_secs)
+        .unwrap_or(TIME_LIMIT)
+}
 /// Address-space cap of each run (KiB; `BLOCKFLOW_FUZZ_MEMORY_KIB` overrides): an allocation past it
 /// aborts the run, which the check reports, instead of exhausting the machine.
 const MEMORY_CAP_KIB: u64 = 6 * 1024 * 1024;
@@ -828,7 +839,7 @@ fn run_case(case: &Case, dir: &Path) -> Outcome {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
         }
-        if start.elapsed() > TIME_LIMIT {
+        if start.elapsed() > time_limit() {
             timed_out = true;
             let _ = child.kill();
             break child.wait().unwrap();
@@ -850,7 +861,7 @@ fn run_case(case: &Case, dir: &Path) -> Outcome {
 fn verdict(o: &Outcome) -> Option<String> {
     let err = o.stderr.trim_end();
     if o.timed_out {
-        return Some(format!("no exit within {TIME_LIMIT:?} (hang)"));
+        return Some(format!("no exit within {:?} (hang)", time_limit()));
     }
     if let Some(sig) = o.signal {
         return Some(format!("killed by signal {sig} (abort, crash or out of memory): {err}"));
