@@ -321,18 +321,15 @@ pub struct ContactCandidates {
     pairs: Vec<(u32, u32)>,
     /// The skin the pairs were found with.
     skin: f64,
-    /// Whether `pairs` belongs to `centres` (false before the first call and after [`Self::clear`]).
+    /// The contact margin they were found for.
+    margin: f64,
+    /// Whether `pairs` belongs to `centres` (false before the first call).
     built: bool,
     /// Times the list was built (for tests and counters).
     builds: u64,
 }
 
 impl ContactCandidates {
-    /// Forgets the candidates: the next call builds them again.
-    pub fn clear(&mut self) {
-        self.built = false;
-    }
-
     /// Times the list was built since it was created.
     pub fn builds(&self) -> u64 {
         self.builds
@@ -355,6 +352,7 @@ impl ContactCandidates {
         // body has moved by half the skin; 0.45 leaves room for the rounding of the displacements.
         let valid = self.built
             && same_bodies
+            && self.margin.to_bits() == margin.to_bits()
             && self.centres.len() == bodies.len()
             && bodies
                 .iter()
@@ -375,6 +373,7 @@ impl ContactCandidates {
                     .iter()
                     .filter_map(|c| c.b.map(|b| (c.a as u32, b as u32))),
             );
+            self.margin = margin;
             self.built = true;
             self.builds += 1;
         }
