@@ -379,7 +379,7 @@ fn calibrate_refuses_non_finite_samples() {
     let dir = tmp("samples-nan");
     let names = "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,\
                  particle_links,link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,\
-                 contacts_seen,scanned,wall_lines,tail_runs,shifted_runs,m_lbm,m_bh,m_coup1,m_coup2,m_rb";
+                 contacts_seen,scanned,wall_lines,tail_runs,shifted_runs,row_pitch,m_lbm,m_bh,m_coup1,m_coup2,m_rb";
     let n = names.split(',').count();
     let row = |last: &str| {
         let mut v = vec!["1"; n - 1];

@@ -235,6 +235,7 @@ impl Observer<f64> for Sampler {
                 q.wall_lines,
                 q.tail_runs,
                 q.shifted_runs,
+                q.row_pitch,
             ];
             let counts: Vec<String> = counts.iter().map(|x| x.to_string()).collect();
             self.csv += &format!(
@@ -811,7 +812,7 @@ fn record(plans: &[Plan]) -> Result<Campaign> {
         csv: String::from(
             "run,block_size,diameter,step,t_star,block,row,C,F,NB,PL,PS,K,S,runs,breaks,wall_links,particle_links,\
              link_cells,map_active,map_bodies,box_cells,rows_derived,turned,covered,rb_active,contacts_seen,\
-             scanned,wall_lines,tail_runs,shifted_runs,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
+             scanned,wall_lines,tail_runs,shifted_runs,row_pitch,m_lbm,m_bh,m_coup1,m_coup2,m_rb\n",
         ),
     };
     for (r, p) in plans.iter().enumerate() {
@@ -1096,6 +1097,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
         "wall_lines",
         "tail_runs",
         "shifted_runs",
+        "row_pitch",
     ];
     let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
     let mut c = Campaign {
@@ -1150,6 +1152,7 @@ fn read_samples(path: &Path) -> Result<Campaign> {
             scanned: v[26],
             tail_runs: v[34],
             shifted_runs: v[35],
+            row_pitch: v[36],
         };
         let m = PartTimes {
             lbm: v[27],

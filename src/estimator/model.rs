@@ -10,7 +10,7 @@
 //!
 //! | part | paper | `blockflow` |
 //! |---|---|---|
-//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams: more than six rows past the run before, e.g. where a sloping wall moves the first fluid row of a plane), tail runs (runs whose last len mod lanes cells the kernel updates in one vector tail step), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
+//! | LBM | eq. (10): a1·C + a2·F + a3 | F, fluid runs (a row set-up each), stream breaks (runs that restart the memory streams: more than six rows past the run before, e.g. where a sloping wall moves the first fluid row of a plane), tail runs × row pitch (runs whose last len mod lanes cells the kernel updates in one vector tail step, each weighted by its row's length in memory, ghosts and padding included: a cut row costs its whole row, and fitted per block size alone a tail cost 142, 191 and 351 ns at 12³, 16³ and 32³, 8.9–9.8 ns per element of the pitches 16, 20 and 36), [F > 0], C·[F > 0] (the lines of the whole block the sweep's streams run through), C·[F > 0]·[no links] (a block no boundary pass has warmed sweeps from memory), NB (fluid cells next to a wall or body, whose neighbours' lines the boundary pass has just written) |
 //! | BH | eq. (11): a1·C + a2·NB + a3 | wall links, cache lines they touch, particle links, link cells, [links > 0] (a block without links has no boundary pass) |
 //! | Coup1 | eq. (12): a1·C + a2·F + a3·P_L + a4·P_S + a5 | [map active], C·[map active], bounding-box cells visited, rows derived, link cells, bodies mapped |
 //! | Coup2 | eq. (13): as eq. (12) | [map active], cells turned fluid, cells covered |
@@ -79,7 +79,10 @@ const BLOCKFLOW: [Terms; 5] = [
         ("fluid_cells", "fluid cells F"),
         ("runs", "runs of fluid cells"),
         ("breaks", "runs that restart the memory streams"),
-        ("tail_runs", "runs that end in a vector tail step"),
+        (
+            "tail_row_elements",
+            "row pitch (elements) x runs that end in a vector tail step",
+        ),
         ("shifted_runs", "runs of planes whose runs differ from the plane before"),
         ("active", "1 if F > 0"),
         ("cells", "C if F > 0"),
@@ -197,7 +200,7 @@ fn blockflow_row(part: usize, q: &Quantities) -> Row {
             q.f,
             q.runs,
             q.breaks,
-            q.tail_runs,
+            q.tail_runs * q.row_pitch,
             q.shifted_runs,
             fluid,
             q.c * fluid,
@@ -303,6 +306,15 @@ mod tests {
             m.row(0, &walled).as_slice(),
             &[4096.0, 0.0, 0.0, 0.0, 0.0, 1.0, 4096.0, 0.0, 0.0]
         );
+        // A run cut short weighs its row's pitch: 3 tail runs in rows of 20 elements.
+        let cut = Quantities {
+            runs: 256.0,
+            tail_runs: 3.0,
+            row_pitch: 20.0,
+            ..walled
+        };
+        assert_eq!(m.row(0, &cut).as_slice()[3], 60.0);
+        assert_eq!(m.terms(0)[3].0, "tail_row_elements");
         assert_eq!(Model::parse(Model::Paper.name()), Some(Model::Paper));
         assert_eq!(Model::parse("cells"), None);
     }

@@ -138,6 +138,10 @@ pub struct Quantities {
     /// Runs of planes whose runs differ from the plane before's ([`shifted_runs`]).
     #[serde(default)]
     pub shifted_runs: f64,
+    /// Elements between consecutive rows of the block's arrays ([`Layout::sx`]: the interior row, its
+    /// ghosts and the padding to the vector width), what one row of each of the 19 streams spans.
+    #[serde(default)]
+    pub row_pitch: f64,
 }
 
 impl Quantities {
@@ -153,6 +157,7 @@ impl Quantities {
             c: blk.layout.interior_cells() as f64,
             wall_links: (blk.links.noslip.len() + blk.links.moving.len()) as f64,
             wall_lines: blk.wall_lines as f64,
+            row_pitch: blk.layout.sx as f64,
             ..Default::default()
         };
         match blk.particle_cells() {
