@@ -3,6 +3,10 @@
 //! nanoseconds per cell and per run. `NB=30` (in L3) or `NB=2` (in L2) give the in-cache figures;
 //! `PARITY=0` or `1` times the even (in-place) or the odd AA steps alone.
 //!
+//! `L=4,8,13,16` times runs of those lengths instead, one in every row: starting at x = 1 or ending at
+//! x = N, the same in every plane or one cell shorter in every other plane (a wall that cuts the planes
+//! differently). `N=32 NB=40` takes blocks of 32³ cells (about 250 MB).
+//!
 //! `cargo run --release -p blockflow-kernels --example sparse_runs`
 
 use blockflow_kernels::field::{Layout, PdfField};
@@ -11,7 +15,7 @@ use blockflow_kernels::TrtParams;
 use std::time::Instant;
 
 fn main() {
-    let n = 16;
+    let n: usize = std::env::var("N").ok().and_then(|s| s.parse().ok()).unwrap_or(16);
     let l = Layout::new::<f64>([n, n, n]);
     let blocks: usize = std::env::var("NB").ok().and_then(|s| s.parse().ok()).unwrap_or(300);
     // `PARITY=0` times only the AA pattern's even steps (in place), `PARITY=1` only its odd ones.
@@ -41,7 +45,7 @@ fn main() {
         }
         v
     };
-    let cases: Vec<(&str, Vec<Segment>)> = vec![
+    let patterns: Vec<(&str, Vec<Segment>)> = vec![
         ("full block", full_segments(&l)),
         ("wall-cut, full rows", runs(&|y, z| (y <= rows_of(z)).then_some((1, n)))),
         ("wall-cut, 7 cells", runs(&|y, z| (y <= rows_of(z)).then_some((1, 7)))),
@@ -64,6 +68,37 @@ fn main() {
             runs(&|y, z| (y <= 6 + (z / 4) % 2).then_some((1, n))),
         ),
     ];
+    let lens: Option<Vec<usize>> = std::env::var("L").ok().map(|s| {
+        s.split(',')
+            .filter_map(|x| x.parse().ok())
+            .filter(|&l| l >= 1 && l <= n)
+            .collect()
+    });
+    let cases: Vec<(String, Vec<Segment>)> = match lens {
+        None => patterns
+            .into_iter()
+            .map(|(name, segs)| (name.to_string(), segs))
+            .collect(),
+        Some(lens) => lens
+            .into_iter()
+            .flat_map(|len| {
+                // One cell shorter in every other plane (at least one cell).
+                let m = move |z: usize| (len - z % 2).max(1);
+                [
+                    (format!("L = {len} from x = 1"), runs(&|_, _| Some((1, len)))),
+                    (format!("L = {len} to x = N"), runs(&|_, _| Some((n + 1 - len, len)))),
+                    (
+                        format!("L = {len} from x = 1, ±1 by plane"),
+                        runs(&|_, z| Some((1, m(z)))),
+                    ),
+                    (
+                        format!("L = {len} to x = N, ±1 by plane"),
+                        runs(&|_, z| Some((n + 1 - m(z), m(z)))),
+                    ),
+                ]
+            })
+            .collect(),
+    };
     println!("| runs | count | cells | µs per block | ns per cell | ns per run |\n|---|---:|---:|---:|---:|---:|");
     for round in 0..2 {
         for (name, segs) in &cases {
