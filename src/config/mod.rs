@@ -1,8 +1,8 @@
-//! Scene configuration: TOML files with the stable keys of DESIGN.md, one file per table
-//! (`[domain]`, `[fluid]`, `[run]`, `[processes]`, `[balance]`, `[particles]`; `[scene]` is the scenes'),
-//! `--set key.path=value` overrides ([`load`], [`parse()`]), unknown keys rejected by name. The enums that switch a
-//! run's algorithms (precision, kernels, surface boundary, strategy, weights, split) live here too, so
-//! every layer above reads them from one place.
+//! Scene configuration: TOML files with the stable keys of DESIGN.md, one file per table (`[domain]`,
+//! `[fluid]`, `[run]`, `[processes]`, `[balance]`, `[particles]`, and `[scene]` in [`scene`], one module per
+//! scene kind), `--set key.path=value` overrides ([`load`], [`parse()`]), unknown keys rejected by name. The
+//! enums that switch a run's algorithms (precision, kernels, surface boundary, strategy, weights, split) live
+//! here too, so every layer above reads them from one place.
 
 mod balance;
 mod domain;
@@ -11,6 +11,7 @@ mod parse;
 mod particles;
 mod processes;
 mod run;
+pub mod scene;
 
 pub use balance::{
     BalanceConfig, DiffusiveMode, SplitKind, Strategy, Weights, DEFAULT_BANDWIDTH, DEFAULT_COEFFICIENTS,
@@ -49,7 +50,7 @@ pub struct Config {
     #[serde(default)]
     pub particles: ParticlesConfig,
     /// The scene and its physical parameters (`[scene]`, chosen by `kind`).
-    pub scene: crate::scenes::SceneConfig,
+    pub scene: scene::SceneConfig,
 }
 
 impl Config {

@@ -19,7 +19,7 @@ pub fn parse(text: &str, origin: &str, overrides: &[String]) -> Result<Config> {
         apply_override(&mut table, o)?;
     }
     match table.get("scene") {
-        Some(sc) => crate::scenes::check_table(sc).map_err(|m| Error::Config(format!("{origin}: {m}")))?,
+        Some(sc) => super::scene::check_table(sc).map_err(|m| Error::Config(format!("{origin}: {m}")))?,
         None => {
             return config_err(format!(
                 "{origin}: missing [scene] table (with kind = \"channel\", ...)"

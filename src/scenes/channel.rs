@@ -3,40 +3,12 @@
 //! between the last fluid cell and the first wall cell. With Λ = 3/16 the TRT solution is exact to rounding.
 
 use super::{check, relative_l2, steady_steps, tau_or, Scene};
+use crate::config::scene::ChannelConfig;
 use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::Geometry;
 use blockflow_kernels::TrtParams;
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// `[scene]` keys of `kind = "channel"`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct ChannelConfig {
-    /// Channel height H in cells.
-    #[serde(default = "d_res")]
-    pub resolution: usize,
-    /// Reynolds number u_max H / ν (kept fixed across resolutions: diffusive scaling).
-    #[serde(default = "d_re")]
-    pub reynolds: f64,
-    /// Cells along the (periodic) flow direction x.
-    #[serde(default = "d_len")]
-    pub length: usize,
-    /// Cells along the (periodic) z direction.
-    #[serde(default = "d_len")]
-    pub width: usize,
-}
-
-fn d_res() -> usize {
-    16
-}
-fn d_re() -> f64 {
-    10.0
-}
-fn d_len() -> usize {
-    4
-}
 
 pub(super) fn build(s: &ChannelConfig, cfg: &Config) -> Result<Scene> {
     check(

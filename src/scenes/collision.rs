@@ -5,44 +5,12 @@
 
 use super::dry::{dry_scene, require_dry};
 use super::{check, ParticleScene, Scene};
+use crate::config::scene::CollisionConfig;
 use crate::config::Config;
 use crate::error::Result;
 use blockflow_kernels::rigid::Body;
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// `[scene]` keys of `kind = "collision"`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct CollisionConfig {
-    /// Sphere diameter (cells).
-    #[serde(default = "d_inc_diameter")]
-    pub diameter: f64,
-    /// Approach speed of each sphere (cells per step).
-    #[serde(default = "d_speed")]
-    pub speed: f64,
-    /// Lateral offset of the oblique pair as a fraction of D, in [0, 1).
-    #[serde(default = "d_impact")]
-    pub impact_parameter: f64,
-    /// Default step count.
-    #[serde(default = "d_col_steps")]
-    pub steps: u64,
-}
-
-fn d_speed() -> f64 {
-    0.05
-}
-fn d_impact() -> f64 {
-    0.5
-}
-fn d_col_steps() -> u64 {
-    200
-}
-
-fn d_inc_diameter() -> f64 {
-    4.0
-}
 
 /// Linear and angular momentum (about the origin) of a set of bodies, and the sums of the magnitudes
 /// of the terms (the scale of their rounding errors).

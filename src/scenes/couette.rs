@@ -2,39 +2,11 @@
 //! and z. Observable `l2_error` against the linear profile u = U y / H (exact with bounce-back).
 
 use super::{check, relative_l2, steady_steps, tau_or, Scene};
+use crate::config::scene::CouetteConfig;
 use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::{FaceWall, Geometry};
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// `[scene]` keys of `kind = "couette"`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct CouetteConfig {
-    /// Gap H in cells.
-    #[serde(default = "d_res")]
-    pub resolution: usize,
-    /// Reynolds number U H / ν (fixed across resolutions).
-    #[serde(default = "d_re")]
-    pub reynolds: f64,
-    /// Cells along x.
-    #[serde(default = "d_len")]
-    pub length: usize,
-    /// Cells along z.
-    #[serde(default = "d_len")]
-    pub width: usize,
-}
-
-fn d_res() -> usize {
-    16
-}
-fn d_re() -> f64 {
-    10.0
-}
-fn d_len() -> usize {
-    4
-}
 
 pub(super) fn build(s: &CouetteConfig, cfg: &Config) -> Result<Scene> {
     check(

@@ -10,41 +10,14 @@
 //!   `reynolds` = U D / ν.
 
 use super::{check, ParticleScene, Scene};
+use crate::config::scene::DragArrayConfig;
 use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::Geometry;
 use blockflow_kernels::rigid::Body;
 use blockflow_kernels::TrtParams;
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// `[scene]` keys of `kind = "drag_array"`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct DragArrayConfig {
-    /// Sphere diameter D in cells.
-    #[serde(default = "d_res")]
-    pub resolution: f64,
-    /// Solid volume fraction φ of the array, in (0, 0.5].
-    #[serde(default = "d_phi")]
-    pub solid_fraction: f64,
-    /// Particle Reynolds number U D / ν the body force aims at (Stokes regime: keep it small).
-    #[serde(default = "d_re")]
-    pub reynolds: f64,
-    /// Steps; absent: L² / ν (the viscous time of the cube: the drag has settled to about 1e-5 by then).
-    pub steps: Option<u64>,
-}
-
-fn d_res() -> f64 {
-    16.0
-}
-fn d_phi() -> f64 {
-    0.125
-}
-fn d_re() -> f64 {
-    0.01
-}
 
 /// Zick & Homsy (1982), simple cubic arrays: (φ, K = F / 6πμaU).
 pub const ZICK_HOMSY: [(f64, f64); 3] = [(0.064, 2.81), (0.125, 4.29), (0.216, 7.44)];

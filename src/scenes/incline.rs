@@ -6,37 +6,12 @@
 
 use super::dry::{dry_scene, require_dry};
 use super::{check, ParticleScene, Scene};
+use crate::config::scene::InclineConfig;
 use crate::config::Config;
 use crate::error::Result;
 use blockflow_kernels::rigid::{Body, Plane};
 use glam::DVec3;
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
-
-/// `[scene]` keys of `kind = "incline"`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct InclineConfig {
-    /// Inclination θ in degrees, in (0, 60].
-    #[serde(default = "d_angle")]
-    pub angle_deg: f64,
-    /// Sphere diameter (cells).
-    #[serde(default = "d_inc_diameter")]
-    pub diameter: f64,
-    /// Default step count.
-    #[serde(default = "d_inc_steps")]
-    pub steps: u64,
-}
-
-fn d_angle() -> f64 {
-    20.0
-}
-fn d_inc_diameter() -> f64 {
-    4.0
-}
-fn d_inc_steps() -> u64 {
-    600
-}
 
 pub(super) fn build(s: &InclineConfig, cfg: &Config) -> Result<Scene> {
     require_dry(cfg, "incline")?;

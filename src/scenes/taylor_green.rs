@@ -7,39 +7,12 @@
 //! Observable `l2_error`: relative L2 error of the velocity at the final step against the analytic field.
 
 use super::{check, kinetic_energy, relative_l2, tau_or, Scene};
+use crate::config::scene::TaylorGreenConfig;
 use crate::config::Config;
 use crate::error::Result;
 use crate::physics::geometry::Geometry;
-use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::f64::consts::PI;
-
-/// `[scene]` keys of `kind = "taylor_green"`.
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct TaylorGreenConfig {
-    /// Period N in cells (box N × N × depth).
-    #[serde(default = "d_res")]
-    pub resolution: usize,
-    /// Reynolds number U0 N / ν.
-    #[serde(default = "d_re")]
-    pub reynolds: f64,
-    /// Final time in units of the amplitude's decay time 1/(2νk²).
-    #[serde(default = "d_time")]
-    pub time: f64,
-    /// Cells along z; absent: N.
-    pub depth: Option<usize>,
-}
-
-fn d_res() -> usize {
-    32
-}
-fn d_re() -> f64 {
-    10.0
-}
-fn d_time() -> f64 {
-    1.0
-}
 
 pub(super) fn build(s: &TaylorGreenConfig, cfg: &Config) -> Result<Scene> {
     check(
