@@ -1045,89 +1045,71 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
     s
 }
 
-/// Reads the samples of an earlier campaign from its `samples.csv` (the columns [`record`] writes):
-/// the samples, the runs, which blocks never held fluid (F = 0 in every sample of the run) and the
-/// first run's figure 6 series.
-fn read_samples(path: &Path) -> Result<Campaign> {
-    let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let col = |name: &str| {
-        header.iter().position(|h| *h == name).ok_or_else(|| {
-            Error::Config(format!(
-                "{}: no column {name:?} (not a samples.csv of this version)",
-                path.display()
-            ))
-        })
-    };
-    let names = [
-        "run",
-        "block_size",
-        "diameter",
-        "step",
-        "t_star",
-        "block",
-        "row",
-        "C",
-        "F",
-        "NB",
-        "PL",
-        "PS",
-        "K",
-        "S",
-        "runs",
-        "wall_links",
-        "particle_links",
-        "link_cells",
-        "map_active",
-        "map_bodies",
-        "box_cells",
-        "rows_derived",
-        "turned",
-        "covered",
-        "rb_active",
-        "contacts_seen",
-        "scanned",
-        "m_lbm",
-        "m_bh",
-        "m_coup1",
-        "m_coup2",
-        "m_rb",
-        "breaks",
-        "wall_lines",
-        "tail_runs",
-        "shifted_runs",
-        "row_pitch",
-    ];
-    let idx: Vec<usize> = names.iter().map(|n| col(n)).collect::<Result<_>>()?;
-    let mut c = Campaign {
-        samples: Vec::new(),
-        never_fluid: Vec::new(),
-        runs: Vec::new(),
-        fig6: Vec::new(),
-        csv: String::new(),
-    };
-    let mut fluid_seen: Vec<Vec<bool>> = Vec::new();
-    for (n, line) in lines.enumerate() {
-        let f: Vec<&str> = line.split(',').collect();
-        // Counts and times are finite: a NaN or infinity (a hand-edited or damaged file) would reach the
-        // fit and the figures.
-        let num = |k: usize| -> Result<f64> {
-            f.get(idx[k])
-                .and_then(|x| x.parse::<f64>().ok())
-                .filter(|v| v.is_finite())
-                .ok_or_else(|| {
-                    Error::Config(format!(
-                        "{}:{}: column {} is not a finite number",
-                        path.display(),
-                        n + 2,
-                        names[k]
-                    ))
-                })
-        };
-        let v: Vec<f64> = (0..names.len()).map(num).collect::<Result<_>>()?;
-        let (run, block) = (v[0] as usize, v[5] as usize);
-        let q = Quantities {
+/// The columns of `samples.csv` that [`read_samples`] reads, in the order [`parse_sample_row`] takes them.
+const SAMPLE_COLUMNS: [&str; 37] = [
+    "run",
+    "block_size",
+    "diameter",
+    "step",
+    "t_star",
+    "block",
+    "row",
+    "C",
+    "F",
+    "NB",
+    "PL",
+    "PS",
+    "K",
+    "S",
+    "runs",
+    "wall_links",
+    "particle_links",
+    "link_cells",
+    "map_active",
+    "map_bodies",
+    "box_cells",
+    "rows_derived",
+    "turned",
+    "covered",
+    "rb_active",
+    "contacts_seen",
+    "scanned",
+    "m_lbm",
+    "m_bh",
+    "m_coup1",
+    "m_coup2",
+    "m_rb",
+    "breaks",
+    "wall_lines",
+    "tail_runs",
+    "shifted_runs",
+    "row_pitch",
+];
+
+/// One line of `samples.csv`: where the sample was taken, its quantities and its measured part times.
+struct SampleRow {
+    run: usize,
+    block_size: usize,
+    diameter: f64,
+    step: u64,
+    t_star: f64,
+    block: usize,
+    row: usize,
+    q: Quantities,
+    m: PartTimes,
+}
+
+/// The values `v` of one line, in the order of [`SAMPLE_COLUMNS`].
+fn parse_sample_row(v: &[f64]) -> SampleRow {
+    SampleRow {
+        run: v[0] as usize,
+        block_size: v[1] as usize,
+        diameter: v[2],
+        step: v[3] as u64,
+        t_star: v[4],
+        block: v[5] as usize,
+        row: v[6] as usize,
+        q: Quantities {
             c: v[7],
             f: v[8],
             nb: v[9],
@@ -1153,51 +1135,110 @@ fn read_samples(path: &Path) -> Result<Campaign> {
             tail_runs: v[34],
             shifted_runs: v[35],
             row_pitch: v[36],
-        };
-        let m = PartTimes {
+        },
+        m: PartTimes {
             lbm: v[27],
             bh: v[28],
             coup1: v[29],
             coup2: v[30],
             rb: v[31],
-        };
-        while c.runs.len() <= run {
-            c.runs.push(RunInfo {
-                block_size: v[1] as usize,
-                diameter: v[2],
+        },
+    }
+}
+
+impl Campaign {
+    /// Adds one sample: its run (created at first sight), whether its block held fluid, and for the first
+    /// run its point of the figure 6 series.
+    fn add(&mut self, r: SampleRow, fluid_seen: &mut Vec<Vec<bool>>) {
+        while self.runs.len() <= r.run {
+            self.runs.push(RunInfo {
+                block_size: r.block_size,
+                diameter: r.diameter,
                 steps: 0,
                 samples: 0,
                 seconds: 0.0,
             });
             fluid_seen.push(Vec::new());
         }
-        let r = &mut c.runs[run];
-        r.steps = r.steps.max(v[3] as u64);
-        r.samples += 1;
-        if fluid_seen[run].len() <= block {
-            fluid_seen[run].resize(block + 1, false);
+        let info = &mut self.runs[r.run];
+        info.steps = info.steps.max(r.step);
+        info.samples += 1;
+        let seen = &mut fluid_seen[r.run];
+        if seen.len() <= r.block {
+            seen.resize(r.block + 1, false);
         }
-        fluid_seen[run][block] |= q.f > 0.0;
-        if run == 0 {
-            if c.fig6.len() <= block {
-                c.fig6.resize(
-                    block + 1,
+        seen[r.block] |= r.q.f > 0.0;
+        if r.run == 0 {
+            if self.fig6.len() <= r.block {
+                self.fig6.resize(
+                    r.block + 1,
                     plots::BlockSeries {
                         row: 0,
                         points: Vec::new(),
                     },
                 );
             }
-            c.fig6[block].row = v[6] as usize;
-            c.fig6[block].points.push((v[4], q.f, m.lbm));
+            let series = &mut self.fig6[r.block];
+            series.row = r.row;
+            series.points.push((r.t_star, r.q.f, r.m.lbm));
         }
-        c.samples.push(Sample {
-            run,
-            step: v[3] as u64,
-            block,
-            q,
-            m,
+        self.samples.push(Sample {
+            run: r.run,
+            step: r.step,
+            block: r.block,
+            q: r.q,
+            m: r.m,
         });
+    }
+}
+
+/// Reads the samples of an earlier campaign from its `samples.csv` (the columns [`record`] writes):
+/// the samples, the runs, which blocks never held fluid (F = 0 in every sample of the run) and the
+/// first run's figure 6 series.
+fn read_samples(path: &Path) -> Result<Campaign> {
+    let text = std::fs::read_to_string(path).map_err(|e| io_err(path, e))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let idx: Vec<usize> = SAMPLE_COLUMNS
+        .iter()
+        .map(|name| {
+            header.iter().position(|h| h == name).ok_or_else(|| {
+                Error::Config(format!(
+                    "{}: no column {name:?} (not a samples.csv of this version)",
+                    path.display()
+                ))
+            })
+        })
+        .collect::<Result<_>>()?;
+    let mut c = Campaign {
+        samples: Vec::new(),
+        never_fluid: Vec::new(),
+        runs: Vec::new(),
+        fig6: Vec::new(),
+        csv: String::new(),
+    };
+    let mut fluid_seen: Vec<Vec<bool>> = Vec::new();
+    for (n, line) in lines.enumerate() {
+        let f: Vec<&str> = line.split(',').collect();
+        // Counts and times are finite: a NaN or infinity (a hand-edited or damaged file) would reach the
+        // fit and the figures.
+        let v: Vec<f64> = idx
+            .iter()
+            .zip(SAMPLE_COLUMNS)
+            .map(|(&i, name)| {
+                f.get(i)
+                    .and_then(|x| x.parse::<f64>().ok())
+                    .filter(|v| v.is_finite())
+                    .ok_or_else(|| {
+                        Error::Config(format!(
+                            "{}:{}: column {name} is not a finite number",
+                            path.display(),
+                            n + 2
+                        ))
+                    })
+            })
+            .collect::<Result<_>>()?;
+        c.add(parse_sample_row(&v), &mut fluid_seen);
     }
     c.never_fluid = fluid_seen
         .into_iter()
