@@ -19,7 +19,7 @@ use crate::metrics::interval::IntervalStats;
 use crate::physics::simulation::Simulation;
 use crate::ranks::World;
 use crate::scenes::{self, FluidView, Scene};
-use crate::timeloop::{Flow, Recording, RunEnd, TimeLoop};
+use crate::timeloop::{Flow, Handle, Recording, RunEnd, TimeLoop};
 use crate::util::fs::{ensure_writable, write_atomic};
 use blockflow_kernels::rigid::Body;
 use blockflow_kernels::Real;
@@ -534,40 +534,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions, world: Arc<Worl
         ck.restore_into(&mut tl)?;
     }
     let start_step = tl.sim().step;
-    let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
-    // Threads of this driver: every virtual process's, or one rank's.
-    let threads = if cfg.processes.ranks > 1 {
-        cfg.processes.threads_per_process
-    } else {
-        cfg.processes.count * cfg.processes.threads_per_process
-    };
-    tl.add_observer(SeriesWriter::new(dir, tl.sim(), &world, series_every, steps, threads)?);
-    let trajectory = TrajectoryRecorder::new(dir, tl.sim(), &world, scene.units)?.map(|r| tl.add_observer(r));
-    if let Some(every) = plan.vtk_every {
-        let w = VtkWriter::new(dir, tl.sim(), &world, every, cfg.run.vtk_encoding)?;
-        tl.add_observer(w);
-    }
-    if let Some(every) = cfg.run.png_every {
-        let w = SliceWriter::new(
-            dir,
-            tl.sim(),
-            &world,
-            tl.pipeline().owners(),
-            cfg,
-            every,
-            scene.name,
-            scene.units,
-        )?;
-        tl.add_observer(w);
-    }
-    let checkpoints = tl.add_observer(CheckpointWriter::new(
-        dir.join("checkpoints"),
-        cfg,
-        plan.config_text,
-        scene.name,
-    ));
-    tl.add_observer(Progress::new(start_step, steps, opts.progress && world.is_root()));
-    tl.add_observer(StopOnSignal);
+    let outputs = attach_outputs(&mut tl, cfg, &scene, &plan, opts, &world, start_step)?;
     let mut summary = summary_head(&tl, cfg, &scene, opts, steps)?;
     let mut tasks_per_step = [tl.tasks_per_step()? as u64];
     if !world.is_single() {
@@ -602,25 +569,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions, world: Arc<Worl
         crate::io::intervals::write(&dir.join("intervals.csv"), tl.intervals())?;
         figures(dir, cfg, tl.intervals(), tl.sim().particles.is_some())?;
     }
-    let mut loop_time = [tl.stepping_seconds()];
-    if !world.is_single() {
-        world.max_f64(&mut loop_time)?;
-    }
-    let loop_time = loop_time[0];
-    let done = tl.sim().step - start_step;
-    summary.wall_seconds = loop_time;
-    summary.mlups = if loop_time > 0.0 {
-        (tl.sim().fluid_cells() as f64 * done as f64) / loop_time / 1e6
-    } else {
-        0.0
-    };
-    let ck = tl.observer(checkpoints);
-    summary.checkpoint = ck.last.as_ref().map(|(_, p)| p.display().to_string());
-    if ck.count > 0 {
-        summary.checkpoints_written = Some(ck.count);
-        summary.checkpoint_seconds = Some(ck.seconds);
-        summary.checkpoint_bytes = Some(ck.bytes);
-    }
+    time_and_checkpoints(&mut summary, &tl, &world, start_step, outputs.checkpoints)?;
     summary::fill(&mut summary, &tl, &cfg.balance, tasks_per_step[0] as usize)?;
     let error = match (failure, interrupted) {
         (Some(e), _) => Some(("unstable", e)),
@@ -642,7 +591,7 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions, world: Arc<Worl
         }
         return Err(e);
     }
-    let points: &[(f64, Body)] = trajectory.map_or(&[], |h| &tl.observer(h).points);
+    let points: &[(f64, Body)] = outputs.trajectory.map_or(&[], |h| &tl.observer(h).points);
     let gathered = if world.is_single() {
         None
     } else {
@@ -663,6 +612,96 @@ fn run_t<T: Real>(cfg: &Config, scene: Scene, opts: &RunOptions, world: Arc<Worl
     summary.status = "ok".to_string();
     write_summary(dir, &summary)?;
     Ok(summary)
+}
+
+/// What [`run_t`] reads back from its outputs after the run.
+struct Outputs {
+    /// The trajectory of body 0, for scenes that record one.
+    trajectory: Option<Handle<TrajectoryRecorder>>,
+    /// The checkpoints written.
+    checkpoints: Handle<CheckpointWriter>,
+}
+
+/// Attaches the run's outputs to the time loop: `series.csv`, the trajectory, VTK and PNG snapshots,
+/// checkpoints, the progress bar and the signal handler.
+fn attach_outputs<T: Real>(
+    tl: &mut TimeLoop<T>,
+    cfg: &Config,
+    scene: &Scene,
+    plan: &Plan,
+    opts: &RunOptions,
+    world: &Arc<World>,
+    start_step: u64,
+) -> Result<Outputs> {
+    let (steps, dir) = (plan.steps, &plan.dir);
+    let series_every = cfg.run.series_every.unwrap_or((steps / 100).max(10));
+    // Threads of this driver: every virtual process's, or one rank's.
+    let threads = if cfg.processes.ranks > 1 {
+        cfg.processes.threads_per_process
+    } else {
+        cfg.processes.count * cfg.processes.threads_per_process
+    };
+    tl.add_observer(SeriesWriter::new(dir, tl.sim(), world, series_every, steps, threads)?);
+    let trajectory = TrajectoryRecorder::new(dir, tl.sim(), world, scene.units)?.map(|r| tl.add_observer(r));
+    if let Some(every) = plan.vtk_every {
+        let w = VtkWriter::new(dir, tl.sim(), world, every, cfg.run.vtk_encoding)?;
+        tl.add_observer(w);
+    }
+    if let Some(every) = cfg.run.png_every {
+        let w = SliceWriter::new(
+            dir,
+            tl.sim(),
+            world,
+            tl.pipeline().owners(),
+            cfg,
+            every,
+            scene.name,
+            scene.units,
+        )?;
+        tl.add_observer(w);
+    }
+    let checkpoints = tl.add_observer(CheckpointWriter::new(
+        dir.join("checkpoints"),
+        cfg,
+        plan.config_text.clone(),
+        scene.name,
+    ));
+    tl.add_observer(Progress::new(start_step, steps, opts.progress && world.is_root()));
+    tl.add_observer(StopOnSignal);
+    Ok(Outputs {
+        trajectory,
+        checkpoints,
+    })
+}
+
+/// Writes the stepping time (the slowest rank's), the MLUPS and what the checkpoints cost into `summary`.
+fn time_and_checkpoints<T: Real>(
+    summary: &mut Summary,
+    tl: &TimeLoop<T>,
+    world: &World,
+    start_step: u64,
+    checkpoints: Handle<CheckpointWriter>,
+) -> Result<()> {
+    let mut loop_time = [tl.stepping_seconds()];
+    if !world.is_single() {
+        world.max_f64(&mut loop_time)?;
+    }
+    let loop_time = loop_time[0];
+    let done = tl.sim().step - start_step;
+    summary.wall_seconds = loop_time;
+    summary.mlups = if loop_time > 0.0 {
+        (tl.sim().fluid_cells() as f64 * done as f64) / loop_time / 1e6
+    } else {
+        0.0
+    };
+    let ck = tl.observer(checkpoints);
+    summary.checkpoint = ck.last.as_ref().map(|(_, p)| p.display().to_string());
+    if ck.count > 0 {
+        summary.checkpoints_written = Some(ck.count);
+        summary.checkpoint_seconds = Some(ck.seconds);
+        summary.checkpoint_bytes = Some(ck.bytes);
+    }
+    Ok(())
 }
 
 /// The run's figures: `balance.png` on several processes, `parts.png` with particles (none for a run
