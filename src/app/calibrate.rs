@@ -951,13 +951,6 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
     s += "\n|---|";
     s += &"---:|".repeat(keys.len());
     s += "\n";
-    let pct = |v: f64| {
-        if v.is_finite() {
-            format!("{:.1} %", 100.0 * v)
-        } else {
-            "-".into()
-        }
-    };
     for (name, m) in &r.models {
         s += &format!("| {name} |");
         for k in keys {
@@ -970,54 +963,86 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
         pct(r.noise_floor.step),
         pct(r.noise_floor.interval)
     );
-    if !r.by_run.is_empty() {
-        // Held out by kind of block: share (block intervals scored), "-" where the run has none.
-        let kind = |m: &BTreeMap<String, KindShare>, k: BlockKind| {
-            let x = m[k.label()];
-            if x.intervals == 0 {
-                "-".to_string()
-            } else {
-                format!("{} ({})", pct(x.share), x.intervals)
-            }
-        };
+    s += &per_run_table(r);
+    s += &noise_floor_lines(r);
+    s += &format!(
+        "{} samples from {} runs in {:.0} s ({} samples of never-fluid blocks left out)\n",
+        r.samples,
+        r.runs.len(),
+        r.seconds,
+        r.never_fluid_samples
+    );
+    s
+}
+
+/// Percent with one decimal, "-" for a statistic that has no samples (NaN).
+fn pct(v: f64) -> String {
+    if v.is_finite() {
+        format!("{:.1} %", 100.0 * v)
+    } else {
+        "-".into()
+    }
+}
+
+/// The per-run table of the report: interval shares within 10 % in-sample, held out and predictive, and
+/// held out by kind of block, with the rows of all runs and of the noise floor (empty without runs).
+fn per_run_table(r: &CalibrationReport) -> String {
+    let mut s = String::new();
+    if r.by_run.is_empty() {
+        return s;
+    }
+    // Held out by kind of block: share (block intervals scored), "-" where the run has none.
+    let kind = |m: &BTreeMap<String, KindShare>, k: BlockKind| {
+        let x = m[k.label()];
+        if x.intervals == 0 {
+            "-".to_string()
+        } else {
+            format!("{} ({})", pct(x.share), x.intervals)
+        }
+    };
+    s += &format!(
+        "\nPer run ({} model): interval shares within 10 %; held out by kind of block (block intervals)\n\n",
+        r.model
+    );
+    s += "| run | in-sample | held out | predictive |";
+    for k in BlockKind::ALL {
+        s += &format!(" held out, {} |", k.label());
+    }
+    s += "\n|---|---:|---:|---:|---:|---:|---:|\n";
+    for x in &r.by_run {
         s += &format!(
-            "\nPer run ({} model): interval shares within 10 %; held out by kind of block (block intervals)\n\n",
-            r.model
+            "| {} | {} | {} | {} |",
+            x.scene,
+            pct(x.interval_in_sample),
+            pct(x.interval_held_out),
+            pct(x.interval_predictive)
         );
-        s += "| run | in-sample | held out | predictive |";
         for k in BlockKind::ALL {
-            s += &format!(" held out, {} |", k.label());
-        }
-        s += "\n|---|---:|---:|---:|---:|---:|---:|\n";
-        for x in &r.by_run {
-            s += &format!(
-                "| {} | {} | {} | {} |",
-                x.scene,
-                pct(x.interval_in_sample),
-                pct(x.interval_held_out),
-                pct(x.interval_predictive)
-            );
-            for k in BlockKind::ALL {
-                s += &format!(" {} |", kind(&x.interval_held_out_by_kind, k));
-            }
-            s += "\n";
-        }
-        let chosen = &r.models[&r.model];
-        s += "| all runs | | | |";
-        for k in BlockKind::ALL {
-            s += &format!(" {} |", kind(&chosen.interval_held_out_by_kind, k));
-        }
-        s += "\n| all runs, predictive | | | |";
-        for k in BlockKind::ALL {
-            s += &format!(" {} |", kind(&chosen.interval_predictive_by_kind, k));
-        }
-        s += "\n| noise floor between identical blocks | | | |";
-        for k in BlockKind::ALL {
-            s += &format!(" {} |", kind(&r.noise_floor.between_blocks_by_kind, k));
+            s += &format!(" {} |", kind(&x.interval_held_out_by_kind, k));
         }
         s += "\n";
     }
-    s += &if r.noise_floor.step_samples == 0 {
+    let chosen = &r.models[&r.model];
+    s += "| all runs | | | |";
+    for k in BlockKind::ALL {
+        s += &format!(" {} |", kind(&chosen.interval_held_out_by_kind, k));
+    }
+    s += "\n| all runs, predictive | | | |";
+    for k in BlockKind::ALL {
+        s += &format!(" {} |", kind(&chosen.interval_predictive_by_kind, k));
+    }
+    s += "\n| noise floor between identical blocks | | | |";
+    for k in BlockKind::ALL {
+        s += &format!(" {} |", kind(&r.noise_floor.between_blocks_by_kind, k));
+    }
+    s += "\n";
+    s
+}
+
+/// The noise-floor lines of the report: unchanged blocks against their own median, and blocks with the
+/// same quantities against their group's.
+fn noise_floor_lines(r: &CalibrationReport) -> String {
+    if r.noise_floor.step_samples == 0 {
         "\nnoise floor: no block was timed on 10 consecutive steps with nothing changed\n".to_string()
     } else {
         format!(
@@ -1034,15 +1059,7 @@ pub fn to_markdown(r: &CalibrationReport, c: &Coefficients) -> String {
                 r.noise_floor.between_blocks_samples
             )
         }
-    };
-    s += &format!(
-        "{} samples from {} runs in {:.0} s ({} samples of never-fluid blocks left out)\n",
-        r.samples,
-        r.runs.len(),
-        r.seconds,
-        r.never_fluid_samples
-    );
-    s
+    }
 }
 
 /// The columns of `samples.csv` that [`read_samples`] reads, in the order [`parse_sample_row`] takes them.
