@@ -285,6 +285,60 @@ fn default_blocks(cells: [usize; 3]) -> [usize; 3] {
     [1, by, bz]
 }
 
+/// The time step and τ: from `fluid.tau` where given (dt = (τ − ½)/3 · dx²/ν), else from `scene.mach`
+/// (the estimated terminal speed `u_est` at that Mach number, dt = Ma c_s dx / u_est); refuses τ outside
+/// [0.5001, 50] and, with `fluid.tau`, an estimated Mach number above [`MAX_MACH`].
+fn time_step(s: &SettlingSphereConfig, fluid_tau: Option<f64>, nu: f64, dx: f64, u_est: f64) -> Result<(f64, f64)> {
+    let cs = 1.0 / 3f64.sqrt();
+    let (dt, tau) = match fluid_tau {
+        Some(tau) => ((tau - 0.5) / 3.0 * dx * dx / nu, tau),
+        None => {
+            let dt = s.mach * cs * dx / u_est;
+            (dt, 0.5 + 3.0 * nu * dt / (dx * dx))
+        }
+    };
+    let mach_est = u_est * dt / dx / cs;
+    if !(tau - 0.5 >= 1e-4 && tau <= 50.0) {
+        return config_err(format!(
+            "scene.mach = {} at scene.resolution = {} gives tau = {tau:.6}, outside [0.5001, 50]; {}",
+            s.mach,
+            s.resolution,
+            if tau < 0.5001 {
+                "raise scene.mach or lower scene.resolution"
+            } else {
+                "lower scene.mach or give fluid.tau"
+            }
+        ));
+    }
+    if fluid_tau.is_some() && mach_est > MAX_MACH {
+        return config_err(format!(
+            "fluid.tau = {tau} gives an estimated terminal Mach number of {mach_est:.3} (above {MAX_MACH}); lower \
+             fluid.tau, or leave it out and set scene.mach"
+        ));
+    }
+    Ok((dt, tau))
+}
+
+/// The lattice steps of `scene.duration` (s), or of `fall_time` (s) where it is absent; refuses more than
+/// 1e9 steps.
+fn step_count(duration: Option<f64>, fall_time: f64, dt: f64) -> Result<u64> {
+    let duration = match duration {
+        Some(t) => {
+            check("duration", t, t > 0.0 && t <= 1e6, "must be a time in (0, 1e6] s")?;
+            t
+        }
+        None => fall_time,
+    };
+    let steps_f = (duration / dt).ceil();
+    if steps_f > 1e9 {
+        return config_err(format!(
+            "scene.duration = {duration} s is {steps_f:.3e} lattice steps of {dt:.3e} s; shorten it or coarsen \
+             scene.resolution"
+        ));
+    }
+    Ok((steps_f as u64).max(1))
+}
+
 pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
     check(
         "resolution",
@@ -327,53 +381,14 @@ pub(super) fn build(s: &SettlingSphereConfig, cfg: &Config) -> Result<Scene> {
     let galileo = ((ratio - 1.0) * p.g * d.powi(3)).sqrt() / nu;
     let re_est = schiller_naumann_reynolds(galileo);
     let u_est = re_est * nu / d;
-    let cs = 1.0 / 3f64.sqrt();
-    let (dt, tau) = match cfg.fluid.tau {
-        Some(tau) => ((tau - 0.5) / 3.0 * dx * dx / nu, tau),
-        None => {
-            let dt = s.mach * cs * dx / u_est;
-            (dt, 0.5 + 3.0 * nu * dt / (dx * dx))
-        }
-    };
-    let mach_est = u_est * dt / dx / cs;
-    if !(tau - 0.5 >= 1e-4 && tau <= 50.0) {
-        return config_err(format!(
-            "scene.mach = {} at scene.resolution = {} gives tau = {tau:.6}, outside [0.5001, 50]; {}",
-            s.mach,
-            s.resolution,
-            if tau < 0.5001 {
-                "raise scene.mach or lower scene.resolution"
-            } else {
-                "lower scene.mach or give fluid.tau"
-            }
-        ));
-    }
-    if cfg.fluid.tau.is_some() && mach_est > MAX_MACH {
-        return config_err(format!(
-            "fluid.tau = {tau} gives an estimated terminal Mach number of {mach_est:.3} (above {MAX_MACH}); lower \
-             fluid.tau, or leave it out and set scene.mach"
-        ));
-    }
+    let (dt, tau) = time_step(s, cfg.fluid.tau, nu, dx, u_est)?;
     let g_lat = p.g * dt * dt / dx;
     let d_lat = s.resolution;
     let centre = DVec3::new(cells[0] as f64 / 2.0, cells[1] as f64 / 2.0, h / dx);
     let body = Body::sphere(0, centre, d_lat / 2.0, ratio);
-    let duration = match s.duration {
-        Some(t) => {
-            check("duration", t, t > 0.0 && t <= 1e6, "must be a time in (0, 1e6] s")?;
-            t
-        }
-        // Down to the bottom at 70 % of the unbounded estimate (walls and the bottom slow the sphere).
-        None => (h - 0.5 * d) / (0.7 * u_est),
-    };
-    let steps_f = (duration / dt).ceil();
-    if steps_f > 1e9 {
-        return config_err(format!(
-            "scene.duration = {duration} s is {steps_f:.3e} lattice steps of {dt:.3e} s; shorten it or coarsen \
-             scene.resolution"
-        ));
-    }
-    let steps = (steps_f as u64).max(1);
+    // Without a duration: down to the bottom at 70 % of the unbounded estimate (walls and the bottom
+    // slow the sphere).
+    let steps = step_count(s.duration, (h - 0.5 * d) / (0.7 * u_est), dt)?;
     let planes = wall_planes(cells, [false; 3]);
     // The case names the run only where the run is that experiment (its fluid, sphere, box and gravity).
     let case_label = match (&s.case, reference.is_some()) {
